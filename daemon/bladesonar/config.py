@@ -1,0 +1,316 @@
+"""Settings: one typed, frozen object built once from YAML and validated at the boundary.
+
+Each section is a frozen dataclass; every field declares its default, its domain and a
+one-line doc (with unit) in ``metadata``. Validation walks those declarations, so the
+schema, the error messages and the commented example file (config/bladesonar.example.yaml)
+all come from one place. Downstream code receives these objects, never raw dicts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from .errors import ConfigError
+
+_UNSET = object()
+
+
+def opt(default: Any, doc: str, *, lo: float | None = None, hi: float | None = None,
+        choices: tuple | None = None, unit: str | None = None, nullable: bool = False,
+        pattern: str | None = None, lo_open: bool = False) -> Any:
+    """Declare a config field: default, one-line doc, and its allowed domain."""
+    return field(default=default, metadata=dict(
+        doc=doc, lo=lo, hi=hi, choices=choices, unit=unit, nullable=nullable,
+        pattern=pattern, lo_open=lo_open))
+
+
+@dataclass(frozen=True)
+class AudioSettings:
+    backend: str = opt("alsa", "where pulses are played and recorded: a real ALSA card, "
+                       "or the in-process scene simulator", choices=("alsa", "sim"))
+    sample_rate: int = opt(44100, "sample rate of playback and capture", lo=8000,
+                           hi=192000, unit="Hz")
+    playback_device: str = opt("default", "ALSA PCM name for the speaker")
+    capture_device: str = opt("default", "ALSA PCM name for the microphone")
+    format: str = opt("S16_LE", "ALSA sample format of both streams",
+                      choices=("S16_LE", "S32_LE"))
+    buffer_periods: int = opt(4, "ALSA buffer size in periods (one period = one PRI)",
+                              lo=2, hi=64)
+    ring_pulses: int = opt(256, "capture ring between the audio thread and processing",
+                           lo=8, hi=65536, unit="pulses")
+
+
+@dataclass(frozen=True)
+class WaveformSettings:
+    pri_samples: int = opt(1297, "pulse repetition interval; PRF = sample_rate / pri_samples",
+                           lo=64, hi=1_000_000, unit="samples")
+    pulse: str = opt("impulse", "transmit pulse shape: the paper's narrow band-limited "
+                     "impulse, or a Hann-windowed click of pulse_samples",
+                     choices=("impulse", "hann"))
+    pulse_samples: int = opt(1, "length of the Hann pulse (ignored for impulse)", lo=1,
+                             hi=256, unit="samples")
+    amplitude: float = opt(0.5, "peak amplitude of the transmitted pulse (full scale = 1)",
+                           lo=0.0, hi=1.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class SceneSettings:
+    blades: int = opt(4, "number of blades K; the echo pattern repeats every 1/K turn",
+                      lo=1, hi=16)
+    speed_of_sound: float = opt(343.0, "c, for range = c * delay / 2", lo=200.0, hi=2000.0,
+                                unit="m/s")
+    gate_start_m: float | None = opt(None, "start of the one-way range gate; null: from the "
+                                     "target range found in the reference", lo=0.0, hi=1000.0,
+                                     unit="m", nullable=True)
+    gate_stop_m: float | None = opt(None, "end of the one-way range gate; null: the last "
+                                    "unambiguous range (one PRI)", lo=0.0, hi=1000.0,
+                                    unit="m", nullable=True, lo_open=True)
+    target_range_m: float | None = opt(None, "one-way range of the fan centre if known; null: "
+                                       "found from the reference's doppler energy",
+                                       lo=0.0, hi=1000.0, unit="m", nullable=True)
+
+
+@dataclass(frozen=True)
+class MqttSettings:
+    host: str | None = opt(None, "broker host name; null: print the messages as JSON lines "
+                           "on stdout instead", nullable=True)
+    port: int = opt(1883, "broker TCP port", lo=1, hi=65535)
+    topic_prefix: str = opt("bladesonar", "topics are <topic_prefix>/<device_id>/...",
+                            pattern=r"[^#+\s]+")
+    discovery: bool = opt(True, "publish Home Assistant MQTT discovery configs")
+    discovery_prefix: str = opt("homeassistant", "Home Assistant discovery prefix",
+                                pattern=r"[^#+\s]+")
+    client_id: str | None = opt(None, "MQTT client id; null: bladesonar-<device_id>",
+                                nullable=True)
+    username: str | None = opt(None, "broker user name", nullable=True)
+    password_file: str | None = opt(None, "file holding the broker password (never logged)",
+                                    nullable=True)
+    password_env: str | None = opt(None, "environment variable holding the broker password",
+                                   nullable=True)
+    tls: bool = opt(False, "connect with TLS (certificates are verified)")
+    ca_certs: str | None = opt(None, "CA bundle for TLS; null: the system's", nullable=True)
+    certfile: str | None = opt(None, "client certificate for TLS", nullable=True)
+    keyfile: str | None = opt(None, "client key for TLS", nullable=True)
+    keepalive_s: int = opt(60, "MQTT keepalive", lo=5, hi=3600, unit="s")
+    publish_interval_s: float = opt(5.0, "state is published at this interval (and at once "
+                                    "on a change of direction or start/stop)", lo=0.1,
+                                    hi=3600.0, unit="s")
+    stats_interval_s: float = opt(60.0, "interval of the stats message", lo=1.0, hi=86400.0,
+                                  unit="s")
+    event_queue: int = opt(1000, "events kept while the broker is away (oldest dropped, "
+                           "and counted, beyond this)", lo=1, hi=1_000_000)
+
+
+@dataclass(frozen=True)
+class Config:
+    device_id: str = opt("bladesonar", "this device's id in topics and in Home Assistant",
+                         pattern=r"[A-Za-z0-9_-]+")
+    audio: AudioSettings = field(default_factory=AudioSettings)
+    waveform: WaveformSettings = field(default_factory=WaveformSettings)
+    scene: SceneSettings = field(default_factory=SceneSettings)
+    mqtt: MqttSettings = field(default_factory=MqttSettings)
+
+    @property
+    def prf_hz(self) -> float:
+        """Pulse repetition frequency."""
+        return self.audio.sample_rate / self.waveform.pri_samples
+
+    @property
+    def max_range_m(self) -> float:
+        """Last unambiguous one-way range: echoes later than one PRI fold into the next."""
+        return self.scene.speed_of_sound * self.waveform.pri_samples / self.audio.sample_rate / 2
+
+
+# --------------------------------------------------------------------------------------
+# Validation
+
+
+def _type_name(tp: Any) -> str:
+    return {int: "an integer", float: "a number", str: "a string", bool: "true or false"}[tp]
+
+
+def _base_type(f: dataclasses.Field) -> Any:
+    t = f.type if not isinstance(f.type, str) else f.type
+    s = str(t)
+    for name, tp in (("bool", bool), ("int", int), ("float", float), ("str", str)):
+        if s.startswith(name):
+            return tp
+    return None
+
+
+def _check_value(key: str, f: dataclasses.Field, value: Any, lines: Mapping[str, int],
+                 source: str | None) -> Any:
+    md = f.metadata
+    line = lines.get(key)
+
+    def fail(allowed: str) -> None:
+        raise ConfigError(key, value, allowed, source=source, line=line)
+
+    if value is None:
+        if md.get("nullable"):
+            return None
+        fail(f"must not be empty ({md['doc']})")
+    tp = _base_type(f)
+    if tp is bool:
+        if not isinstance(value, bool):
+            fail("must be true or false")
+    elif tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, float) and value.is_integer():
+                value = int(value)
+            else:
+                fail(_allowed_text(md, "an integer"))
+    elif tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            fail(_allowed_text(md, "a number"))
+        value = float(value)
+        if value != value or value in (float("inf"), float("-inf")):
+            fail(_allowed_text(md, "a finite number"))
+    elif tp is str:
+        if not isinstance(value, str) or not value:
+            fail(_allowed_text(md, "a non-empty string"))
+    if md.get("choices") is not None and value not in md["choices"]:
+        close = difflib.get_close_matches(str(value), [str(c) for c in md["choices"]], 1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        fail(f"must be one of {', '.join(map(str, md['choices']))}{hint}")
+    lo, hi = md.get("lo"), md.get("hi")
+    if tp in (int, float):
+        if (lo is not None and (value < lo or (md.get("lo_open") and value == lo))) or (
+                hi is not None and value > hi):
+            fail(_allowed_text(md, _type_name(tp)))
+    if md.get("pattern") and not re.fullmatch(md["pattern"], value):
+        fail(f"must match {md['pattern']}")
+    return value
+
+
+def _num(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else f"{x:g}"
+
+
+def _allowed_text(md: Mapping[str, Any], what: str) -> str:
+    lo, hi, unit = md.get("lo"), md.get("hi"), md.get("unit")
+    u = f" {unit}" if unit else ""
+    if lo is not None and hi is not None:
+        lo_word = "above" if md.get("lo_open") else "from"
+        return f"must be {what} {lo_word} {_num(lo)} to {_num(hi)}{u}"
+    return f"must be {what}"
+
+
+def _build(cls: type, data: Any, prefix: str, lines: Mapping[str, int],
+           source: str | None) -> Any:
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(prefix.rstrip(".") or "<top>", data, "must be a mapping of keys",
+                          source=source, line=lines.get(prefix.rstrip(".")))
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    for k in data:
+        if k not in fields:
+            close = difflib.get_close_matches(str(k), list(fields), 1)
+            hint = f"; did you mean {prefix}{close[0]}?" if close else ""
+            raise ConfigError(f"{prefix}{k}", data[k],
+                              f"unknown key (known here: {', '.join(fields)}){hint}",
+                              source=source, line=lines.get(f"{prefix}{k}"))
+    kwargs = {}
+    for name, f in fields.items():
+        key = f"{prefix}{name}"
+        if dataclasses.is_dataclass(f.default_factory if f.default_factory is not
+                                    dataclasses.MISSING else None):
+            kwargs[name] = _build(f.default_factory, data.get(name), key + ".", lines, source)
+        elif name in data:
+            kwargs[name] = _check_value(key, f, data[name], lines, source)
+    return cls(**kwargs)
+
+
+def _check_cross(cfg: Config, lines: Mapping[str, int], source: str | None) -> None:
+    s = cfg.scene
+    if s.gate_start_m is not None and s.gate_stop_m is not None and s.gate_stop_m <= s.gate_start_m:
+        raise ConfigError("scene.gate_stop_m", s.gate_stop_m,
+                          f"must be greater than scene.gate_start_m ({s.gate_start_m:g} m)",
+                          source=source, line=lines.get("scene.gate_stop_m"))
+    if s.gate_stop_m is not None and s.gate_stop_m > cfg.max_range_m + 1e-9:
+        raise ConfigError("scene.gate_stop_m", s.gate_stop_m,
+                          f"must be at most {cfg.max_range_m:.3f} m, the last unambiguous range "
+                          f"for pri_samples={cfg.waveform.pri_samples} at "
+                          f"{cfg.audio.sample_rate} Hz (echoes later than one PRI fold into "
+                          "the next pulse); raise waveform.pri_samples or lower the gate",
+                          source=source, line=lines.get("scene.gate_stop_m"))
+
+
+def from_mapping(data: Any, *, source: str | None = None,
+                 lines: Mapping[str, int] | None = None) -> Config:
+    """Validate a parsed YAML document and build the settings object."""
+    lines = lines or {}
+    cfg = _build(Config, data, "", lines, source)
+    _check_cross(cfg, lines, source)
+    return cfg
+
+
+def replace(cfg: Config, **sections: Mapping[str, Any]) -> Config:
+    """A copy of cfg with some keys changed, validated like a file (e.g. from CLI options)."""
+    data = to_mapping(cfg)
+    for sec, values in sections.items():
+        if isinstance(values, Mapping):
+            data.setdefault(sec, {}).update(values)
+        else:
+            data[sec] = values
+    return from_mapping(data)
+
+
+def to_mapping(cfg: Any) -> dict[str, Any]:
+    """The settings as plain data (what a reference file or a status message records)."""
+    return dataclasses.asdict(cfg)
+
+
+def _yaml_lines(text: str) -> tuple[Any, dict[str, int]]:
+    import yaml
+
+    node = yaml.compose(text, Loader=yaml.SafeLoader)
+    lines: dict[str, int] = {}
+
+    def walk(n: Any, prefix: str) -> None:
+        if isinstance(n, yaml.MappingNode):
+            for k, v in n.value:
+                key = f"{prefix}{k.value}"
+                lines[key] = k.start_mark.line + 1
+                walk(v, key + ".")
+
+    if node is not None:
+        walk(node, "")
+    return yaml.safe_load(text), lines
+
+
+def load(path: str | Path | None) -> Config:
+    """Read and validate a YAML config file; None gives the defaults."""
+    if path is None:
+        return Config()
+    import yaml
+
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError("--config", str(path), f"cannot be read ({exc.strerror}); give the "
+                          "path of a YAML file such as config/bladesonar.example.yaml") from exc
+    try:
+        data, lines = _yaml_lines(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise ConfigError("<yaml>", str(path), f"is not valid YAML: {exc}", source=str(p),
+                          line=(mark.line + 1) if mark else None) from exc
+    return from_mapping(data, source=str(p), lines=lines)
+
+
+def iter_fields(cls: type = Config, prefix: str = ""):
+    """Yield (dotted key, field) for every leaf setting: drives docs and the example file."""
+    for f in dataclasses.fields(cls):
+        fac = f.default_factory if f.default_factory is not dataclasses.MISSING else None
+        if fac is not None and dataclasses.is_dataclass(fac):
+            yield from iter_fields(fac, f"{prefix}{f.name}.")
+        else:
+            yield f"{prefix}{f.name}", f

@@ -1,0 +1,42 @@
+"""The few exceptions bladesonar raises on purpose, each carrying what a user needs to fix it.
+
+The command line turns any of these into one clear line on stderr and exit code 2;
+anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+
+class BladesonarError(Exception):
+    """Base class: a problem with the user's input, configuration or environment."""
+
+    exit_code = 2
+
+
+class ConfigError(BladesonarError):
+    """A configuration value is missing, malformed or out of range."""
+
+    def __init__(self, key: str, value: object, allowed: str, *, source: str | None = None,
+                 line: int | None = None) -> None:
+        self.key, self.value, self.allowed = key, value, allowed
+        self.source, self.line = source, line
+        where = ""
+        if source:
+            where = f"{source}:{line}: " if line else f"{source}: "
+        super().__init__(f"{where}{key} = {value!r}: {allowed}")
+
+
+class InputError(BladesonarError):
+    """A recording (WAV file or audio stream) cannot be analysed as it is."""
+
+
+class ReferenceFileError(BladesonarError):
+    """A reference file is missing, corrupt, or was made with other config values."""
+
+
+class EstimationError(BladesonarError):
+    """The data do not determine the answer (stationary target, aliasing, too few periods)."""
+
+
+class AudioDeviceError(BladesonarError):
+    """An audio device could not be opened or configured."""

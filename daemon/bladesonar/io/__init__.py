@@ -1,0 +1,1 @@
+"""Edges that touch files: WAV recordings, reference files, truth sidecars."""
