@@ -76,6 +76,52 @@ class SceneSettings:
 
 
 @dataclass(frozen=True)
+class AnalysisSettings:
+    """Reference building and matching (owned by the pipeline: dsp/, analysis.py)."""
+
+    phase_bins: int = opt(0, "angular bins of the reference table; 0: about one per "
+                          "reference pulse per blade period, at most 256", lo=0, hi=4096)
+    min_periods: float = opt(3.0, "blade periods a reference must hold to be folded",
+                             lo=1.0, hi=10000.0)
+
+
+@dataclass(frozen=True)
+class TrackingSettings:
+    """The circular Kalman filter on (phase, phase rate) (owned by dsp/tracking.py)."""
+
+    slew_limit: float = opt(4.0, "largest |rate| relative to the reference the tracker "
+                            "follows (the paper: 4 reference pulses per pulse)", lo=0.1,
+                            hi=100.0)
+
+
+@dataclass(frozen=True)
+class DaemonSettings:
+    """The long-running service (bladesonar run)."""
+
+    state_dir: str = opt("/var/lib/bladesonar", "where the reference is stored "
+                         "(systemd StateDirectory)")
+    reference: str = opt("reference.npz", "reference file name, relative to state_dir "
+                         "unless absolute")
+    window_s: float = opt(5.0, "observation window the published estimate describes",
+                          lo=0.25, hi=3600.0, unit="s")
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """The in-process scene simulator behind audio.backend: sim (demo, self-test)."""
+
+    scene: str = opt("scenes/paper-room.yaml", "scene file (relative to this config "
+                     "file's folder unless absolute)")
+    schedule: str = opt("ccw:0.5:20", "rotation schedule as DIR:RATE_HZ:SECONDS,... "
+                        "(DIR cw, ccw or stop); the last segment repeats")
+    snr_db: float = opt(20.0, "fan-echo to noise power inside the range gate", lo=-30.0,
+                        hi=120.0, unit="dB")
+    seed: int = opt(1, "random seed of the simulated noise and start offset", lo=0,
+                    hi=2**32 - 1)
+    realtime: bool = opt(True, "pace the simulated audio at the real sample rate")
+
+
+@dataclass(frozen=True)
 class MqttSettings:
     host: str | None = opt(None, "broker host name; null: print the messages as JSON lines "
                            "on stdout instead", nullable=True)
@@ -113,7 +159,18 @@ class Config:
     audio: AudioSettings = field(default_factory=AudioSettings)
     waveform: WaveformSettings = field(default_factory=WaveformSettings)
     scene: SceneSettings = field(default_factory=SceneSettings)
+    analysis: AnalysisSettings = field(default_factory=AnalysisSettings)
+    tracking: TrackingSettings = field(default_factory=TrackingSettings)
     mqtt: MqttSettings = field(default_factory=MqttSettings)
+    daemon: DaemonSettings = field(default_factory=DaemonSettings)
+    sim: SimSettings = field(default_factory=SimSettings)
+    #: Folder of the config file; relative paths in it are resolved against this.
+    base_dir: str = field(default=".", metadata=dict(internal=True))
+
+    def path(self, p: str) -> Path:
+        """A path from the config, resolved against the config file's folder."""
+        q = Path(p).expanduser()
+        return q if q.is_absolute() else Path(self.base_dir) / q
 
     @property
     def prf_hz(self) -> float:
@@ -208,7 +265,7 @@ def _build(cls: type, data: Any, prefix: str, lines: Mapping[str, int],
     if not isinstance(data, Mapping):
         raise ConfigError(prefix.rstrip(".") or "<top>", data, "must be a mapping of keys",
                           source=source, line=lines.get(prefix.rstrip(".")))
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
     for k in data:
         if k not in fields:
             close = difflib.get_close_matches(str(k), list(fields), 1)
@@ -259,12 +316,14 @@ def replace(cfg: Config, **sections: Mapping[str, Any]) -> Config:
             data.setdefault(sec, {}).update(values)
         else:
             data[sec] = values
-    return from_mapping(data)
+    return dataclasses.replace(from_mapping(data), base_dir=cfg.base_dir)
 
 
 def to_mapping(cfg: Any) -> dict[str, Any]:
     """The settings as plain data (what a reference file or a status message records)."""
-    return dataclasses.asdict(cfg)
+    data = dataclasses.asdict(cfg)
+    data.pop("base_dir", None)
+    return data
 
 
 def _yaml_lines(text: str) -> tuple[Any, dict[str, int]]:
@@ -303,12 +362,15 @@ def load(path: str | Path | None) -> Config:
         mark = getattr(exc, "problem_mark", None)
         raise ConfigError("<yaml>", str(path), f"is not valid YAML: {exc}", source=str(p),
                           line=(mark.line + 1) if mark else None) from exc
-    return from_mapping(data, source=str(p), lines=lines)
+    cfg = from_mapping(data, source=str(p), lines=lines)
+    return dataclasses.replace(cfg, base_dir=str(p.resolve().parent))
 
 
 def iter_fields(cls: type = Config, prefix: str = ""):
     """Yield (dotted key, field) for every leaf setting: drives docs and the example file."""
     for f in dataclasses.fields(cls):
+        if f.metadata.get("internal"):
+            continue
         fac = f.default_factory if f.default_factory is not dataclasses.MISSING else None
         if fac is not None and dataclasses.is_dataclass(fac):
             yield from iter_fields(fac, f"{prefix}{f.name}.")
