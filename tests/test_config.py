@@ -68,3 +68,25 @@ def test_check_config_command_exit_codes(tmp_path):
                          str(bad)], capture_output=True, text=True)
     assert ko.returncode == 2
     assert "not valid YAML" in ko.stderr and "Traceback" not in ko.stderr
+
+
+def test_example_config_documents_every_key_with_its_default(repo_root):
+    """The shipped example must load to exactly the defaults and name every key.
+
+    If this fails after adding a setting, regenerate the file:
+    ``.venv/bin/python -m bladesonar.config_doc > config/bladesonar.example.yaml``.
+    """
+    import yaml
+
+    path = repo_root / "config" / "bladesonar.example.yaml"
+    loaded = config.load(path)
+    assert config.to_mapping(loaded) == config.to_mapping(config.Config())
+    data = yaml.safe_load(path.read_text())
+    for key, _ in config.iter_fields():
+        node = data
+        for part in key.split("."):
+            assert part in node, f"{key} missing from {path.name}"
+            node = node[part]
+    text = path.read_text()
+    for key, f in config.iter_fields():
+        assert f.metadata["doc"] in text, f"doc of {key} missing"
