@@ -1,0 +1,212 @@
+"""``bladesonar simulate``: render a scene to a mono WAV plus a truth sidecar (OUT.truth.json).
+
+A thin edge: parse options, load the scene and config, stream the pure renderer's chunks
+into the WAV and truth writers, print a one-line JSON summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+EPILOG = """\
+conventions:
+  floor plan x right, y up, seen from above; angles and rates ccw-positive; fan angle 0 puts
+  blade 0 along +x. One-way range = c * delay / 2, delay counted from the direct-coupling
+  edge. SNR = fan-echo power (blade, wall_blade, blade_wall paths, noise-free) averaged over
+  the samples inside the range gate of every pulse, over the white-noise power.
+
+example:
+  bladesonar simulate --scene config/scenes/paper-room.yaml --seconds 10 --out out/fan.wav
+  bladesonar simulate --scene config/scenes/paper-room.yaml --seconds 60 --out out/rev.wav \\
+      --schedule ccw:0.5:20,stop:0:5,cw:0.4:35 --snr-db 10 --drift-ppm 50 --dropouts 3
+"""
+
+
+def _number(what: str, lo: float | None = None, hi: float | None = None,
+            lo_open: bool = False, allow_inf: bool = False):
+    def conv(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number; {what}") from None
+        if math.isnan(v) or (math.isinf(v) and not allow_inf):
+            raise argparse.ArgumentTypeError(f"{text!r}: {what}")
+        if lo is not None and (v < lo or (lo_open and v == lo)) and not math.isinf(v):
+            raise argparse.ArgumentTypeError(f"{text!r}: {what}")
+        if hi is not None and v > hi and not math.isinf(v):
+            raise argparse.ArgumentTypeError(f"{text!r}: {what}")
+        return v
+    return conv
+
+
+def _count(what: str, lo: int):
+    def conv(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer; {what}") from None
+        if v < lo:
+            raise argparse.ArgumentTypeError(f"{text!r}: {what}")
+        return v
+    return conv
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "simulate", help="render a scene (room, fan, rotation schedule) to WAV + truth JSON",
+        description="Simulate the pulsed sonar in a 2-D room with a rotating fan: writes a "
+                    "mono 16-bit WAV at the config's sample rate and OUT.truth.json (per-pulse "
+                    "fan angle, rate, direction and path delays), then prints a one-line "
+                    "JSON summary on stdout.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scene", required=True, metavar="SCENE.yaml",
+                   help="scene file: room polygon, wall reflection, sensor, fan "
+                        "(e.g. config/scenes/paper-room.yaml)")
+    p.add_argument("--seconds", required=True, metavar="S",
+                   type=_number("give the length of the recording in seconds, > 0", lo=0.0,
+                                lo_open=True, hi=1e7),
+                   help="length of the output recording, seconds")
+    p.add_argument("--out", required=True, metavar="OUT.wav",
+                   help="output WAV; the truth goes to OUT.truth.json beside it "
+                        "(folders are created)")
+    p.add_argument("--config", metavar="CFG",
+                   help="YAML config for sample rate, pri_samples, pulse shape, amplitude, "
+                        "speed of sound, blade count and range gate (default: built-in "
+                        "defaults: 44100 Hz, PRI 1297 samples, impulse, 4 blades)")
+    g = p.add_argument_group("rotation (default: the scene's schedule, else the config's "
+                             "sim.schedule)")
+    g.add_argument("--schedule", metavar="SPEC",
+                   help="DIR:RATE_HZ:SECONDS,... with DIR cw, ccw or stop, e.g. "
+                        "ccw:0.5:3,stop:0:2,cw:0.4:5; the last segment continues to the end")
+    g.add_argument("--rate", metavar="HZ",
+                   type=_number("give the fan rate in Hz (turns per second), >= 0", lo=0.0),
+                   help="constant rate in Hz (turns per second); 0 = stopped")
+    g.add_argument("--direction", choices=("cw", "ccw"),
+                   help="direction for --rate, seen from above in the floor plan "
+                        "(default: ccw)")
+    n = p.add_argument_group("noise and impairments")
+    n.add_argument("--snr-db", metavar="DB",
+                   type=_number("give the SNR in dB from -60 to 200, or inf for no noise",
+                                lo=-60.0, hi=200.0, allow_inf=True),
+                   help="fan-echo to noise power inside the range gate, dB (default: the "
+                        "config's sim.snr_db, 20 dB); inf = no noise")
+    n.add_argument("--seed", metavar="N", type=_count("give an integer >= 0", 0),
+                   help="random seed for noise, start offset and drop-out positions "
+                        "(default: the config's sim.seed, 1)")
+    n.add_argument("--start-offset", metavar="SAMPLES",
+                   type=_number("give a sample position from 0 to below pri_samples", lo=0.0),
+                   help="playback sample of the first pulse, may be fractional "
+                        "(default: random in the first PRI, from --seed)")
+    n.add_argument("--drift-ppm", metavar="PPM", default=0.0,
+                   type=_number("give a drift in ppm from -10000 to 10000", lo=-1e4, hi=1e4),
+                   help="capture clock runs fast by PPM parts per million (negative: slow); "
+                        "default 0")
+    n.add_argument("--dropouts", metavar="N", default=0,
+                   type=_count("give a number of drop-outs >= 0", 0),
+                   help="number of runs of lost capture samples at random positions "
+                        "(default 0)")
+    n.add_argument("--dropout-samples", metavar="N", default=64,
+                   type=_count("give a drop-out length of at least 1 sample", 1),
+                   help="length of each drop-out, samples (default 64)")
+    n.add_argument("--dropout-mode", choices=("remove", "zero"), default="remove",
+                   help="remove: lost samples are missing and later ones shift earlier (an "
+                        "overrun); zero: they are zeroed in place (default remove)")
+    n.add_argument("--dc-offset", metavar="V", default=0.0,
+                   type=_number("give a DC offset from -1 to 1 (full scale 1)", lo=-1.0, hi=1.0),
+                   help="constant added to every sample, full scale = 1 (default 0)")
+    n.add_argument("--clip", metavar="LEVEL",
+                   type=_number("give a clip level above 0 up to 1 (full scale)", lo=0.0,
+                                lo_open=True, hi=1.0),
+                   help="clip samples at +-LEVEL (full scale = 1) and count them "
+                        "(default: no clipping below full scale)")
+    o = p.add_argument_group("paths and output")
+    o.add_argument("--no-wall-bounces", action="store_true",
+                   help="keep only the direct blade echo (plus coupling and static wall "
+                        "echoes): the mirror-ambiguous case")
+    o.add_argument("--no-paths", action="store_true",
+                   help="omit per-pulse path lists from the truth (for very long runs)")
+    o.add_argument("--quiet", action="store_true",
+                   help="no progress meter and no warnings on stderr (the JSON summary is "
+                        "still printed)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+    import logging
+    from pathlib import Path
+
+    from .. import config
+    from ..errors import ConfigError
+    from ..io.truth import TruthWriter, truth_path
+    from ..io.wav import WavWriter
+    from ..progress import Progress
+    from ..sim import load_scene
+    from ..sim.render import Simulator
+    from ..sim.schedule import Schedule
+
+    if args.quiet:
+        logging.getLogger("bladesonar.sim").setLevel(logging.ERROR)
+    cfg = config.load(args.config)
+    scene = load_scene(args.scene)
+    if args.rate is not None and args.schedule is not None:
+        raise ConfigError("--rate", args.rate, "cannot be combined with --schedule; give one")
+    if args.direction is not None and args.rate is None:
+        raise ConfigError("--direction", args.direction, "needs --rate HZ (or use --schedule)")
+    schedule = None
+    if args.schedule is not None:
+        from ..sim.schedule import parse
+
+        schedule = parse(args.schedule, key="--schedule")
+    if args.start_offset is not None and args.start_offset >= cfg.waveform.pri_samples:
+        raise ConfigError("--start-offset", args.start_offset, "must be below pri_samples "
+                          f"({cfg.waveform.pri_samples}): the first pulse starts inside the "
+                          "first PRI")
+    if args.rate is not None:
+        schedule = Schedule.constant(args.rate, args.direction or "ccw")
+    snr = cfg.sim.snr_db if args.snr_db is None else args.snr_db
+    snr = None if math.isinf(snr) and snr > 0 else snr
+    if snr is not None and math.isinf(snr):
+        raise ConfigError("--snr-db", args.snr_db, "must be a number from -60 to 200 dB, or "
+                          "inf for no noise")
+    seed = cfg.sim.seed if args.seed is None else args.seed
+    sim = Simulator(scene, cfg, schedule, snr_db=snr, seed=seed,
+                    start_offset=args.start_offset, drift_ppm=args.drift_ppm,
+                    dropouts=args.dropouts, dropout_samples=args.dropout_samples,
+                    dropout_mode=args.dropout_mode, dc_offset=args.dc_offset, clip=args.clip,
+                    wall_bounces=not args.no_wall_bounces, include_paths=not args.no_paths)
+    meta = sim.prepare(args.seconds)
+
+    out = Path(args.out)
+    tpath = truth_path(out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        wav = WavWriter(out, cfg.audio.sample_rate)
+    except OSError as exc:
+        raise ConfigError("--out", str(args.out), f"cannot be written ({exc.strerror}); give "
+                          "a writable path") from exc
+    fs = float(cfg.audio.sample_rate)
+    prog = Progress("simulate", args.seconds, " s", enabled=False if args.quiet else None)
+    done = 0
+    complete = False
+    with wav, TruthWriter(tpath, meta) as truth:
+        try:
+            for x, recs in sim.chunks(args.seconds):
+                wav.write(x)
+                truth.write_pulses(recs)
+                done += len(x)
+                prog.update(done / fs)
+            complete = True
+        finally:
+            truth.close(dict(complete=complete, samples=wav.frames,
+                             pulses=truth.pulses_written, clipped_samples=sim.clipped,
+                             full_scale_clipped_samples=wav.clipped))
+            prog.close()
+    print(json.dumps(dict(wav=str(out), truth=str(tpath), seconds=args.seconds,
+                          samples=wav.frames, sample_rate=cfg.audio.sample_rate,
+                          pulses=truth.pulses_written,
+                          clipped_samples=sim.clipped + wav.clipped,
+                          noise_sigma=sim.sigma,
+                          start_offset_samples=sim.offset)))
+    return 0

@@ -1,0 +1,73 @@
+"""Streaming writer and reader of a simulation's truth sidecar (OUT.truth.json).
+
+Layout: one JSON object ``{"meta": {...}, "pulses": [...], "summary": {...}}`` written
+incrementally, one pulse record per line, so hours of pulses never sit in memory and the
+file stays valid JSON for any reader. ``summary`` (written last) holds what is only known
+at the end, e.g. clipped sample counts.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterable
+
+
+def truth_path(wav_path: str | Path) -> Path:
+    """OUT.wav -> OUT.truth.json (beside it)."""
+    p = Path(wav_path)
+    stem = p.name[:-4] if p.name.lower().endswith(".wav") else p.name
+    return p.with_name(stem + ".truth.json")
+
+
+def _clean(v: Any) -> Any:
+    """JSON has no NaN/inf: write them as null."""
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, dict):
+        return {k: _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    return v
+
+
+class TruthWriter:
+    """``write_pulses`` as chunks come, ``close(summary)`` at the end."""
+
+    def __init__(self, path: str | Path, meta: dict[str, Any]) -> None:
+        self.path = Path(path)
+        self._f = open(self.path, "w", encoding="utf-8")
+        self._f.write('{"meta": ' + json.dumps(_clean(meta), allow_nan=False) + ',\n"pulses": [')
+        self._n = 0
+        self._closed = False
+
+    def write_pulses(self, records: Iterable[dict[str, Any]]) -> None:
+        for r in records:
+            self._f.write(("\n" if self._n == 0 else ",\n")
+                          + json.dumps(_clean(r), separators=(",", ":"), allow_nan=False))
+            self._n += 1
+
+    def close(self, summary: dict[str, Any] | None = None) -> None:
+        if self._closed:
+            return
+        self._f.write("\n],\n\"summary\": " + json.dumps(_clean(summary or {}), allow_nan=False)
+                      + "}\n")
+        self._f.close()
+        self._closed = True
+
+    @property
+    def pulses_written(self) -> int:
+        return self._n
+
+    def __enter__(self) -> "TruthWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read_truth(path: str | Path) -> dict[str, Any]:
+    """The whole truth file (for tests and short runs)."""
+    with open(path, encoding="utf-8") as f:
+        return json.load(f)

@@ -1,0 +1,284 @@
+"""The scene: a 2-D floor plan with walls, one co-located speaker+microphone and a fan (pure).
+
+Conventions (contracts for plots and truth files):
+
+- Coordinates in metres in the floor plan as drawn: x right, y up, seen from above.
+- Wall i runs from vertex i to vertex i+1 (the last wall closes the polygon); walls
+  reflect on the room's inner face only.
+- Fan angle 0: blade 0 points along +x from the fan centre; blade j sits at
+  angle + 2*pi*j/K. Positive angles and rates are counter-clockwise (ccw).
+- A blade is the radial segment from ``hub_radius_m`` to ``hub_radius_m + blade_length_m``.
+
+Blade count: the scene may state ``fan.blades``; it must then equal the config's
+``scene.blades`` (the analysis divides the blade-phase rate by that K), else
+``Scene.with_config`` raises ConfigError. A scene without it takes the config's K.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import ConfigError
+from . import schedule as _schedule
+
+#: K used by ``geometry`` when neither the scene nor a config gives one (config default).
+DEFAULT_BLADES = 4
+#: The sensor must sit at least this far inside every wall.
+MIN_WALL_CLEARANCE_M = 1e-3
+
+_KEYS = {
+    "": ("name", "room", "sensor", "fan", "coupling_gain", "schedule", "description"),
+    "room.": ("vertices", "reflection"),
+    "fan.": ("centre", "center", "blades", "blade_length_m", "hub_radius_m",
+             "start_angle_deg", "reflectivity"),
+}
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Geometry and reflectivities; everything about the run itself lives elsewhere."""
+
+    vertices: tuple[tuple[float, float], ...]
+    """Room polygon corners, metres."""
+    wall_reflection: tuple[float, ...]
+    """Pressure reflection coefficient of each wall (wall i: vertex i -> i+1), 0..1."""
+    sensor: tuple[float, float]
+    """Co-located speaker and microphone, metres."""
+    fan_centre: tuple[float, float]
+    """Fan hub centre, metres."""
+    blade_length_m: float = 0.58
+    hub_radius_m: float = 0.0
+    blades: int | None = None
+    start_angle_rad: float = 0.0
+    blade_reflectivity: float = 1.0
+    coupling_gain: float = 1.0
+    """Speaker-to-microphone gain of the direct coupling (the pulse's leading edge)."""
+    schedule: str | None = None
+    """Optional rotation schedule DIR:RATE_HZ:SECONDS,... stated by the scene file."""
+    name: str = "scene"
+    source: str | None = None
+
+    # ------------------------------------------------------------------ derived arrays
+    @property
+    def K(self) -> int:
+        return int(self.blades) if self.blades is not None else DEFAULT_BLADES
+
+    @property
+    def wall_a(self) -> np.ndarray:
+        return np.asarray(self.vertices, dtype=np.float64)
+
+    @property
+    def wall_b(self) -> np.ndarray:
+        return np.roll(self.wall_a, -1, axis=0)
+
+    @property
+    def wall_normals(self) -> np.ndarray:
+        """Unit normals pointing into the room, (W, 2)."""
+        d = self.wall_b - self.wall_a
+        ln = np.hypot(d[:, 0], d[:, 1])[:, None]
+        left = np.stack([-d[:, 1], d[:, 0]], axis=1) / ln
+        return left if _signed_area(self.wall_a) > 0 else -left
+
+    @property
+    def tip_radius_m(self) -> float:
+        return self.hub_radius_m + self.blade_length_m
+
+    @property
+    def sensor_fan_distance_m(self) -> float:
+        return math.dist(self.sensor, self.fan_centre)
+
+    def with_config(self, cfg) -> "Scene":
+        """The scene with its blade count settled against ``cfg.scene.blades``."""
+        k = cfg.scene.blades
+        if self.blades is None:
+            return dataclasses.replace(self, blades=int(k))
+        if int(self.blades) != int(k):
+            raise ConfigError("fan.blades", self.blades,
+                              f"disagrees with the config's scene.blades = {k}; set both to "
+                              "the real blade count (the analysis divides the blade-phase "
+                              "rate by it)", source=self.source)
+        return self
+
+    def describe(self) -> dict[str, Any]:
+        """Plain data for truth files."""
+        return dict(name=self.name, source=self.source,
+                    vertices=[list(v) for v in self.vertices],
+                    wall_reflection=list(self.wall_reflection), sensor=list(self.sensor),
+                    fan_centre=list(self.fan_centre), blades=self.K,
+                    blade_length_m=self.blade_length_m, hub_radius_m=self.hub_radius_m,
+                    start_angle_rad=self.start_angle_rad,
+                    blade_reflectivity=self.blade_reflectivity,
+                    coupling_gain=self.coupling_gain, schedule=self.schedule)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_mapping(cls, data: Any, *, source: str | None = None,
+                     lines: Mapping[str, int] | None = None) -> "Scene":
+        """Validate a parsed scene document (see config/scenes/paper-room.yaml)."""
+        lines = lines or {}
+
+        def fail(key: str, value: Any, allowed: str) -> None:
+            raise ConfigError(key, value, allowed, source=source, line=lines.get(key))
+
+        if not isinstance(data, Mapping):
+            fail("<scene>", data, "must be a mapping with room, sensor and fan")
+        _check_keys(data, "", fail)
+        for req in ("room", "sensor", "fan"):
+            if req not in data:
+                fail(req, None, f"is required (a scene needs room, sensor and fan; see "
+                     "config/scenes/paper-room.yaml)")
+        room, fan = data["room"], data["fan"]
+        if not isinstance(room, Mapping):
+            fail("room", room, "must be a mapping with vertices and reflection")
+        if not isinstance(fan, Mapping):
+            fail("fan", fan, "must be a mapping with centre, blade_length_m, ...")
+        _check_keys(room, "room.", fail)
+        _check_keys(fan, "fan.", fail)
+
+        verts = room.get("vertices")
+        if (not isinstance(verts, (list, tuple)) or len(verts) < 3
+                or not all(_is_point(v) for v in verts)):
+            fail("room.vertices", verts, "must be a list of at least 3 [x, y] points in "
+                 "metres, e.g. [[0, 0], [4, 0], [4, 3], [0, 3]]")
+        V = np.asarray(verts, dtype=np.float64)
+        nw = len(V)
+        seg = np.hypot(*(np.roll(V, -1, axis=0) - V).T)
+        if np.any(seg < 1e-6):
+            fail("room.vertices", verts, "has a zero-length wall (repeated vertex); "
+                 "list each corner once, without closing the polygon")
+        if abs(_signed_area(V)) < 1e-6:
+            fail("room.vertices", verts, "encloses no area")
+        if _self_intersects(V):
+            fail("room.vertices", verts, "walls cross each other; list the corners in "
+                 "order around the room")
+
+        refl = room.get("reflection", 0.5)
+        if _is_num(refl):
+            refl = [float(refl)] * nw
+        if (not isinstance(refl, (list, tuple)) or len(refl) != nw
+                or not all(_is_num(r) and 0.0 <= float(r) <= 1.0 for r in refl)):
+            fail("room.reflection", room.get("reflection"), f"must be a number from 0 to 1 or "
+                 f"a list of {nw} such numbers, one per wall (wall i: vertex i -> i+1)")
+
+        sensor = data["sensor"]
+        if not _is_point(sensor):
+            fail("sensor", sensor, "must be an [x, y] point in metres")
+        centre = fan.get("centre", fan.get("center"))
+        if not _is_point(centre):
+            fail("fan.centre", centre, "must be an [x, y] point in metres")
+
+        def num(key: str, m: Mapping, name: str, default: float, lo: float, hi: float,
+                lo_open: bool = False) -> float:
+            v = m.get(name, default)
+            ok = _is_num(v) and (lo < float(v) if lo_open else lo <= float(v)) and float(v) <= hi
+            if not ok:
+                word = "above" if lo_open else "from"
+                fail(key, v, f"must be a number {word} {lo:g} to {hi:g}")
+            return float(v)
+
+        length = num("fan.blade_length_m", fan, "blade_length_m", 0.58, 0.0, 100.0, True)
+        hub = num("fan.hub_radius_m", fan, "hub_radius_m", 0.0, 0.0, 100.0)
+        start = num("fan.start_angle_deg", fan, "start_angle_deg", 0.0, -1e6, 1e6)
+        rho_b = num("fan.reflectivity", fan, "reflectivity", 1.0, 0.0, 1.0)
+        gain = num("coupling_gain", data, "coupling_gain", 1.0, 0.0, 1e3)
+        blades = fan.get("blades")
+        if blades is not None and (isinstance(blades, bool) or not isinstance(blades, int)
+                                   or not 1 <= blades <= 16):
+            fail("fan.blades", blades, "must be an integer from 1 to 16 (or left out to use "
+                 "the config's scene.blades)")
+
+        sched = data.get("schedule")
+        if sched is not None:
+            sched = _schedule.parse(sched, key="schedule", source=source).to_string()
+
+        S, C = np.asarray(sensor, float), np.asarray(centre, float)
+        if not _inside(S, V) or _dist_to_walls(S, V).min() < MIN_WALL_CLEARANCE_M:
+            fail("sensor", sensor, "is not inside the room; put it strictly inside the "
+                 f"polygon room.vertices (at least {MIN_WALL_CLEARANCE_M * 1000:g} mm from "
+                 "every wall)")
+        if not _inside(C, V):
+            fail("fan.centre", centre, "is not inside the room; put it inside room.vertices")
+        clear = _dist_to_walls(C, V).min()
+        if clear <= hub + length:
+            fail("fan.blade_length_m", length, f"blade tips ({hub + length:g} m from the "
+                 f"centre) would reach a wall ({clear:.3f} m away); shorten the blades or "
+                 "move fan.centre")
+        return cls(vertices=tuple((float(x), float(y)) for x, y in V),
+                   wall_reflection=tuple(float(r) for r in refl),
+                   sensor=(float(S[0]), float(S[1])), fan_centre=(float(C[0]), float(C[1])),
+                   blade_length_m=length, hub_radius_m=hub, blades=blades,
+                   start_angle_rad=math.radians(start), blade_reflectivity=rho_b,
+                   coupling_gain=gain, schedule=sched,
+                   name=str(data.get("name", "scene")), source=source)
+
+
+# ---------------------------------------------------------------------- helpers
+
+def _check_keys(m: Mapping, prefix: str, fail) -> None:
+    known = _KEYS[prefix]
+    for k in m:
+        if k not in known:
+            close = difflib.get_close_matches(str(k), known, 1)
+            hint = f"; did you mean {prefix}{close[0]}?" if close else ""
+            fail(f"{prefix}{k}", m[k], f"unknown key (known here: {', '.join(known)}){hint}")
+
+
+def _is_num(v: Any) -> bool:
+    return (isinstance(v, (int, float)) and not isinstance(v, bool)
+            and math.isfinite(float(v)))
+
+
+def _is_point(v: Any) -> bool:
+    return isinstance(v, (list, tuple)) and len(v) == 2 and all(_is_num(c) for c in v)
+
+
+def _signed_area(V: np.ndarray) -> float:
+    x, y = V[:, 0], V[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def _inside(p: np.ndarray, V: np.ndarray) -> bool:
+    """Even-odd ray casting."""
+    x, y = p
+    inside = False
+    for (x1, y1), (x2, y2) in zip(V, np.roll(V, -1, axis=0)):
+        if (y1 > y) != (y2 > y):
+            xc = x1 + (y - y1) * (x2 - x1) / (y2 - y1)
+            if xc > x:
+                inside = not inside
+    return inside
+
+
+def _dist_to_walls(p: np.ndarray, V: np.ndarray) -> np.ndarray:
+    A, B = V, np.roll(V, -1, axis=0)
+    d = B - A
+    t = np.clip(np.sum((p - A) * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-300), 0, 1)
+    q = A + t[:, None] * d
+    return np.hypot(*(p - q).T)
+
+
+def _self_intersects(V: np.ndarray) -> bool:
+    n = len(V)
+    A, B = V, np.roll(V, -1, axis=0)
+    for i in range(n):
+        for j in range(i + 1, n):
+            if j == i + 1 or (i == 0 and j == n - 1):
+                continue
+            if _segments_cross(A[i], B[i], A[j], B[j]):
+                return True
+    return False
+
+
+def _segments_cross(p1, p2, q1, q2) -> bool:
+    def orient(a, b, c):
+        return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+
+    d1, d2 = orient(q1, q2, p1), orient(q1, q2, p2)
+    d3, d4 = orient(p1, p2, q1), orient(p1, p2, q2)
+    return d1 * d2 <= 0 and d3 * d4 <= 0
