@@ -79,10 +79,29 @@ class SceneSettings:
 class AnalysisSettings:
     """Reference building and matching (owned by the pipeline: dsp/, analysis.py)."""
 
-    phase_bins: int = opt(0, "angular bins of the reference table; 0: about one per "
-                          "reference pulse per blade period, at most 256", lo=0, hi=4096)
+    phase_bins: int = opt(0, "angular bins of the reference table; 0: two per reference "
+                          "pulse per blade period (folding many periods fills the angles "
+                          "between pulses), 16 to 256", lo=0, hi=4096)
     min_periods: float = opt(3.0, "blade periods a reference must hold to be folded",
                              lo=1.0, hi=10000.0)
+    features: str = opt("envelope", "what is matched: the envelope of the moving echoes "
+                        "(robust to sub-sample jitter and drift) or the raw samples",
+                        choices=("envelope", "raw"))
+    envelope_smooth: int = opt(5, "moving-average length applied to the envelope along range",
+                               lo=1, hi=64, unit="samples")
+    static_window_s: float = opt(3.0, "time constant of the running mean pulse (the static "
+                                 "room) removed before matching", lo=0.1, hi=600.0, unit="s")
+    gate_margin_m: float = opt(0.2, "with a null scene.gate_start_m the gate opens this much "
+                               "before the target range", lo=0.0, hi=10.0, unit="m")
+    min_pulses: int = opt(64, "fewest pulses a recording to analyse must hold", lo=16,
+                          hi=1_000_000)
+    max_phase_per_pulse: float = opt(0.4, "largest blade phase step per pulse accepted in a "
+                                     "reference (1/2 is the aliasing limit PRF/(2K))",
+                                     lo=0.05, hi=0.5)
+    line_snr_min: float = opt(8.0, "strongest doppler line over the noise floor needed to "
+                              "call a reference target moving", lo=1.5, hi=1e6)
+    max_clip_fraction: float = opt(0.01, "clipped samples above this fraction refuse a "
+                                   "recording (below: a warning)", lo=0.0, hi=1.0)
 
 
 @dataclass(frozen=True)
@@ -92,6 +111,23 @@ class TrackingSettings:
     slew_limit: float = opt(4.0, "largest |rate| relative to the reference the tracker "
                             "follows (the paper: 4 reference pulses per pulse)", lo=0.1,
                             hi=100.0)
+    rate_noise: float = opt(1e-7, "rate random-walk variance per pulse, in (reference "
+                            "cycles per pulse)^2: how fast the fan may speed up or slow down",
+                            lo=0.0, hi=1.0)
+    meas_sigma: float = opt(0.02, "phase noise of a perfect match, in blade periods; scaled "
+                            "by 1/match quality", lo=1e-6, hi=0.5)
+    gate_sigma: float = opt(4.0, "innovation gate: matches further than this many standard "
+                            "deviations are outliers", lo=1.0, hi=100.0)
+    reacquire_after: int = opt(6, "outliers in a row that restart the track (a reversal or "
+                               "a drop-out)", lo=1, hi=10000, unit="pulses")
+    init_pulses: int = opt(24, "matches the circular-regression start uses", lo=4,
+                           hi=10000, unit="pulses")
+    min_coherence: float = opt(0.6, "coherence of those matches needed to lock (noise gives "
+                               "about 1/sqrt(init_pulses))", lo=0.0, hi=1.0)
+    motion_threshold: float = opt(1.15, "pulse variance over the most-alike-lag difference "
+                                  "below which the target is called stopped", lo=1.0, hi=10.0)
+    min_confidence: float = opt(0.5, "below this confidence the direction is reported as "
+                                "unknown", lo=0.0, hi=1.0)
 
 
 @dataclass(frozen=True)
