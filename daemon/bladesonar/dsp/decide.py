@@ -1,0 +1,207 @@
+"""From a track and the motion evidence to an answer: direction, rate, confidence.
+
+Two independent pieces of evidence:
+
+* Motion (:class:`MotionMeter`): does anything in the gate change between pulses beyond
+  the noise? With D_m the mean half squared difference of pulses m apart and V the
+  temporal variance over a window, a target that does not move gives ``V / min_m D_m``
+  close to 1 (every difference is noise), while a moving one gives more: its echo pattern
+  varies over the window, but at some lag m <= max_lag it nearly repeats. "Stopped" is
+  decided from this, never from a small, noisy rate.
+* The track (:mod:`tracking`): phase rate w (reference cycles per pulse) and its standard
+  deviation. The sign is trusted by ``p = Phi(|w| / sd)``, the probability that the sign
+  is right under the filter's own uncertainty; confidence combines it with the share of
+  pulses the filter accepted and the match quality.
+
+``unknown`` when the evidence is too weak: no lock, low confidence, or a scene that cannot
+be seen at all (only noise in the gate: neither stopped nor moving can be told).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class MotionMeter:
+    """Streaming motion statistic over the last ``window`` pulses.
+
+    Parameters
+    ----------
+    length : int
+        Samples per (gated) pulse.
+    window : int
+        Pulses in the sliding window.
+    max_lag : int
+        Largest lag m tried for D_m: any rate has a lag m <= max_lag at which the blade
+        phase is within 1/(max_lag+1) cycle of where it was.
+
+    Notes
+    -----
+    Per pulse the cost is ``max_lag`` vector differences; sums are kept per pulse in ring
+    buffers so that a pulse leaving the window is subtracted exactly.
+    """
+
+    def __init__(self, length: int, window: int, max_lag: int = 16) -> None:
+        if window < max_lag + 2:
+            raise ValueError("window must exceed max_lag + 1 pulses")
+        self.window, self.max_lag = int(window), int(max_lag)
+        self._x = np.zeros((self.max_lag + 1, length))    # last pulses, ring
+        self._d = np.zeros((self.window, self.max_lag))   # lag energies per pulse, ring
+        self._e = np.zeros(self.window)                   # |x|^2 per pulse, ring
+        self._s = np.zeros((self.window, length))         # the pulses themselves, ring
+        self._n = 0
+
+    def update(self, x: np.ndarray) -> None:
+        """Add one pulse, shape (length,). Lost pulses are not fed (a lag then spans the
+        gap, which only blurs the statistic slightly)."""
+        x = np.asarray(x, dtype=np.float64)
+        i = self._n % self.window
+        j = self._n % (self.max_lag + 1)
+        lags = min(self._n, self.max_lag)
+        d = np.zeros(self.max_lag)
+        if lags:
+            idx = (j - np.arange(1, lags + 1)) % (self.max_lag + 1)
+            diff = self._x[idx] - x[None, :]
+            d[:lags] = 0.5 * np.einsum("ij,ij->i", diff, diff)
+        self._d[i] = d
+        self._e[i] = float(x @ x)
+        self._s[i] = x
+        self._x[j] = x
+        self._n += 1
+
+    @property
+    def count(self) -> int:
+        """Pulses in the window now."""
+        return min(self._n, self.window)
+
+    def statistic(self) -> tuple[float, float]:
+        """(motion ratio V / min_m D_m, scene ratio |mean|^2 / noise); NaN if too few.
+
+        The scene ratio is the static echo energy over the noise energy per pulse: near
+        0 when the gate holds only noise.
+        """
+        n = self.count
+        if n < self.max_lag + 2:
+            return float("nan"), float("nan")
+        d = self._d[:n]
+        # lag m is valid for pulses that had m predecessors inside the window
+        dm = np.empty(self.max_lag)
+        order = np.argsort(np.arange(n) if self._n <= self.window else
+                           (np.arange(n) - self._n) % self.window)
+        d = d[order]
+        for m in range(1, self.max_lag + 1):
+            dm[m - 1] = d[m:, m - 1].mean()
+        noise = float(dm.min())
+        mean = self._s[:n].mean(axis=0)
+        var = float(self._e[:n].mean() - mean @ mean)
+        if not noise > 0:
+            return (1.0 if var <= 0 else float("inf")), float("inf")
+        return var / noise, float(mean @ mean) / noise
+
+
+def motion_statistic(pulses: np.ndarray, max_lag: int = 16) -> tuple[float, float]:
+    """One-shot form of :class:`MotionMeter` over all rows of ``pulses`` (n, L)."""
+    m = MotionMeter(pulses.shape[1], len(pulses), max_lag)
+    for p in pulses:
+        m.update(p)
+    return m.statistic()
+
+
+@dataclass(frozen=True)
+class DecideSettings:
+    """Thresholds of :func:`decide` (config ``tracking``)."""
+
+    motion_threshold: float = 1.15
+    scene_threshold: float = 4.0
+    min_confidence: float = 0.5
+    slew_limit: float = 4.0
+    good_quality: float = 0.3
+
+
+@dataclass
+class Decision:
+    """The answer for one window; ``as_dict`` gives the JSON keys of ``analyze``."""
+
+    direction: str
+    rotation: str | None
+    relative_rate: float | None
+    rate_hz: float | None
+    rpm: float | None
+    confidence: float
+    reason: str
+    warnings: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        def r(v: float | None, n: int) -> float | None:
+            return None if v is None or not math.isfinite(v) else round(float(v), n)
+        return dict(direction=self.direction, rotation=self.rotation,
+                    relative_rate=r(self.relative_rate, 5), rate_hz=r(self.rate_hz, 5),
+                    rpm=r(self.rpm, 3), confidence=r(self.confidence, 4), reason=self.reason)
+
+
+def _phi(x: float) -> float:
+    return 0.5 * (1.0 + math.erf(x / math.sqrt(2.0)))
+
+
+def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quality: float,
+           motion: float, scene: float, ref_cycles_per_pulse: float, ref_rate_hz: float,
+           ref_direction: str = "unknown",
+           settings: DecideSettings = DecideSettings()) -> Decision:
+    """Direction and rate of one window.
+
+    Parameters
+    ----------
+    rate, rate_std : float
+        Tracked phase rate and its standard deviation, reference cycles per pulse.
+    locked : bool
+        Whether the tracker holds a track.
+    accepted : float
+        Share of recent matches the tracker accepted, in [0, 1].
+    quality : float
+        Mean match contrast of recent pulses, in [0, 1].
+    motion, scene : float
+        From :class:`MotionMeter` (NaN if not yet known).
+    ref_cycles_per_pulse, ref_rate_hz : float
+        Reference blade phase per pulse and its rotation rate, Hz (> 0).
+    ref_direction : {"cw", "ccw", "unknown"}
+        The reference's own direction, for the absolute answer.
+    """
+    s = settings
+    warnings: list[str] = []
+    if math.isfinite(motion) and motion < s.motion_threshold:
+        if not (scene >= s.scene_threshold):
+            return Decision("unknown", None, None, None, None, 0.0,
+                            "nothing but noise in the range gate", warnings)
+        conf = min(max((s.motion_threshold - motion) / (s.motion_threshold - 1.0), 0.0), 1.0)
+        return Decision("stopped", None, 0.0, 0.0, 0.0, conf,
+                        f"no change between pulses beyond noise (motion {motion:.3f} < "
+                        f"{s.motion_threshold:g})", warnings)
+    if not locked or not math.isfinite(rate) or not ref_cycles_per_pulse > 0:
+        return Decision("unknown", None, None, None, None, 0.0,
+                        "no consistent match against the reference", warnings)
+    rel = rate / ref_cycles_per_pulse
+    rel_std = rate_std / ref_cycles_per_pulse
+    p_sign = _phi(abs(rate) / rate_std) if rate_std > 0 else 1.0
+    conf = (2.0 * p_sign - 1.0) * min(max(accepted, 0.0), 1.0) * min(
+        max(quality / s.good_quality, 0.0), 1.0)
+    if abs(rel) > s.slew_limit:
+        warnings.append(f"|relative rate| {abs(rel):.2f} exceeds the slew limit "
+                        f"{s.slew_limit:g}: re-record the reference nearer this speed")
+        conf *= 0.5
+    rate_hz = abs(rel) * ref_rate_hz
+    if not math.isfinite(motion):
+        conf *= 0.5
+    if conf < s.min_confidence:
+        return Decision("unknown", None, rel, rate_hz, rate_hz * 60.0, conf,
+                        f"weak evidence (confidence {conf:.2f} < {s.min_confidence:g}; "
+                        f"relative rate {rel:+.3f} +- {rel_std:.3f})", warnings)
+    same = rel > 0
+    direction = "same" if same else "reversed"
+    rotation = None
+    if ref_direction in ("cw", "ccw"):
+        rotation = ref_direction if same else ("ccw" if ref_direction == "cw" else "cw")
+    return Decision(direction, rotation, rel, rate_hz, rate_hz * 60.0, conf,
+                    f"relative rate {rel:+.4f} +- {rel_std:.4f}", warnings)

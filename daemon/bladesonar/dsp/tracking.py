@@ -1,0 +1,268 @@
+"""Circular Kalman filter on (blade phase, phase rate) of the matched reference phases.
+
+State ``x = [phase, rate]`` in cycles of the reference table (one blade period) and cycles
+per pulse; constant-rate model ``F = [[1, 1], [0, 1]]`` with white rate noise. Phases live
+on a circle, so the innovation is wrapped into [-1/2, 1/2) and the phase state is kept in
+[0, 1). The covariance update is Joseph form plus symmetrisation, which keeps P symmetric
+positive definite in stiff cases (tiny process noise, huge measurement noise, long runs).
+
+Outliers: an innovation outside ``gate_sigma`` standard deviations, or larger than the
+slew bound (the phase cannot move further than the largest allowed rate beyond what was
+predicted), is skipped and counted; after ``reacquire_after`` outliers in a row the filter
+re-initialises from the recent matches.
+
+Initialisation finds the rate sign robustly by circular regression: over candidate rates
+w within the slew bound, the coherence ``|sum_k q_k exp(2 pi i (z_k - w k))| / sum q_k`` of
+the first matches is largest at the true rate; random matches give a low coherence and
+the filter stays unlocked (no answer) instead of guessing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def wrap(d: float | np.ndarray) -> float | np.ndarray:
+    """Wrap a phase difference (cycles) into [-1/2, 1/2)."""
+    return (np.asarray(d) + 0.5) % 1.0 - 0.5 if isinstance(d, np.ndarray) else (
+        (d + 0.5) % 1.0 - 0.5)
+
+
+def kalman_predict(x: np.ndarray, P: np.ndarray, q: float, steps: int = 1
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Propagate ``steps`` pulses under constant rate with rate random-walk density ``q``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (2,)
+        [phase (cycles), rate (cycles/pulse)].
+    P : ndarray, shape (2, 2)
+        Covariance.
+    q : float
+        Rate noise variance per pulse, (cycles/pulse)^2.
+    steps : int
+        Pulses to advance (gaps after lost pulses).
+    """
+    n = float(steps)
+    ph, w = float(x[0]), float(x[1])
+    p00, p01, p11 = float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
+    a00 = p00 + 2 * n * p01 + n * n * p11 + q * n ** 3 / 3.0
+    a01 = p01 + n * p11 + q * n * n / 2.0
+    a11 = p11 + q * n
+    return (np.array([(ph + n * w) % 1.0, w]),
+            np.array([[a00, a01], [a01, a11]]))
+
+
+def innovation(x: np.ndarray, P: np.ndarray, z: float, r: float) -> tuple[float, float]:
+    """Wrap-aware innovation ``z - phase`` in [-1/2, 1/2) and its variance ``S``."""
+    return float(wrap(float(z) - float(x[0]))), float(P[0, 0]) + float(r)
+
+
+def kalman_update(x: np.ndarray, P: np.ndarray, z: float, r: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Measurement update with a phase ``z`` of variance ``r`` (Joseph form, symmetrised)."""
+    nu, s = innovation(x, P, z, r)
+    if not s > 0:
+        return x, P
+    p00, p01, p11 = float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
+    k0, k1 = p00 / s, p01 / s
+    # (I - K H) P (I - K H)^T + K r K^T with H = [1, 0]
+    a, c = 1.0 - k0, -k1
+    n00 = a * a * p00 + k0 * k0 * r
+    n01 = a * (c * p00 + p01) + k0 * k1 * r
+    n11 = c * c * p00 + 2 * c * p01 + p11 + k1 * k1 * r
+    xn = np.array([(float(x[0]) + k0 * nu) % 1.0, float(x[1]) + k1 * nu])
+    return xn, np.array([[n00, n01], [n01, n11]])
+
+
+def kalman_step(x: np.ndarray, P: np.ndarray, z: float | None, *, q: float, r: float,
+                steps: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """One pulse: predict ``steps`` pulses, then update with ``z`` (None: predict only).
+
+    Returns
+    -------
+    x : ndarray, shape (2,)
+    P : ndarray, shape (2, 2)
+    """
+    x, P = kalman_predict(x, P, q, steps)
+    if z is None:
+        return x, P
+    return kalman_update(x, P, z, r)
+
+
+def circular_rate_search(k: np.ndarray, z: np.ndarray, w: np.ndarray, max_rate: float
+                         ) -> tuple[float, float, float]:
+    """Rate and phase of matches by circular regression (robust to outliers and wraps).
+
+    Parameters
+    ----------
+    k : ndarray, shape (n,)
+        Pulse numbers.
+    z : ndarray, shape (n,)
+        Matched phases, cycles.
+    w : ndarray, shape (n,)
+        Weights (match qualities), >= 0.
+    max_rate : float
+        Search |rate| <= max_rate, cycles per pulse (< 1/2).
+
+    Returns
+    -------
+    rate : float
+        Cycles per pulse.
+    phase : float
+        Fitted phase at the last pulse ``k[-1]``, cycles.
+    coherence : float
+        In [0, 1]: 1 when every match lies on the line, about ``1/sqrt(n)`` for noise.
+    """
+    k = np.asarray(k, dtype=np.float64)
+    kk = k - k[-1]
+    span = max(float(kk.max() - kk.min()), 1.0)
+    sw = float(np.sum(w))
+    if not sw > 0:
+        return 0.0, 0.0, 0.0
+    step = 1.0 / (8.0 * span)
+    grid = np.arange(-max_rate, max_rate + step / 2, step)
+    u = np.exp(2j * np.pi * np.asarray(z, dtype=np.float64)) * w
+    c = np.exp(-2j * np.pi * np.outer(grid, kk)) @ u
+    mag = np.abs(c) / sw
+    g = int(np.argmax(mag))
+    rate = float(grid[g])
+    if 0 < g < len(grid) - 1:
+        a, b, cc = mag[g - 1], mag[g], mag[g + 1]
+        den = a - 2 * b + cc
+        if den < 0:
+            rate += float(0.5 * (a - cc) / den) * step
+    cbest = complex(np.sum(u * np.exp(-2j * np.pi * rate * kk)))
+    return rate, (math.atan2(cbest.imag, cbest.real) / (2 * math.pi)) % 1.0, abs(cbest) / sw
+
+
+@dataclass(frozen=True)
+class TrackerSettings:
+    """Tuning of :class:`Tracker` (from config ``tracking``).
+
+    Attributes
+    ----------
+    max_rate : float
+        Slew bound: largest |rate| followed, cycles per pulse (``slew_limit`` times the
+        reference rate, and below 1/2).
+    q_rate : float
+        Rate random-walk variance per pulse, (cycles/pulse)^2.
+    meas_sigma : float
+        Phase noise of a perfect match (quality 1), cycles; scaled by 1/quality.
+    gate_sigma : float
+        Innovation gate in standard deviations.
+    reacquire_after : int
+        Consecutive outliers that trigger a re-initialisation.
+    init_pulses : int
+        Matches used by the circular-regression initialisation.
+    min_coherence : float
+        Coherence needed to lock.
+    """
+
+    max_rate: float
+    q_rate: float = 1e-7
+    meas_sigma: float = 0.02
+    gate_sigma: float = 4.0
+    reacquire_after: int = 6
+    init_pulses: int = 24
+    min_coherence: float = 0.6
+
+
+@dataclass
+class TrackState:
+    """The tracker's answer after one pulse."""
+
+    k: int
+    z: float
+    quality: float
+    phase: float
+    rate: float
+    rate_std: float
+    locked: bool
+    outlier: bool
+    coherence: float
+
+
+@dataclass
+class Tracker:
+    """Per-pulse tracker for the daemon: matches in, (phase, rate) estimates out.
+
+    Feed every pulse with :meth:`update` (pulse number, matched phase, match quality); a
+    lost pulse is simply not fed, its gap is propagated by the next update.
+    """
+
+    settings: TrackerSettings
+    x: np.ndarray | None = None
+    P: np.ndarray | None = None
+    last_k: int | None = None
+    outlier_run: int = 0
+    outliers: int = 0
+    updates: int = 0
+    coherence: float = 0.0
+    _recent: deque = field(default_factory=deque)
+
+    def __post_init__(self) -> None:
+        self._recent = deque(maxlen=self.settings.init_pulses)
+
+    @property
+    def locked(self) -> bool:
+        return self.x is not None
+
+    def _r(self, quality: float) -> float:
+        s = self.settings.meas_sigma / max(float(quality), 0.05)
+        return min(s, 0.5) ** 2
+
+    def _init(self) -> bool:
+        st = self.settings
+        if len(self._recent) < st.init_pulses:
+            return False
+        k, z, w = (np.array(v) for v in zip(*self._recent))
+        rate, phase, coh = circular_rate_search(k, z, w, st.max_rate)
+        self.coherence = coh
+        if coh < st.min_coherence:
+            return False
+        # wrapped-normal spread of the matches about the line -> initial covariance
+        var = min(max(-2.0 * math.log(max(coh, 1e-9)) / (2 * math.pi) ** 2, 1e-8), 0.1)
+        n = float(len(k))
+        span = max(float(k[-1] - k[0]), 1.0)
+        self.x = np.array([phase, rate])
+        self.P = np.array([[4.0 * var / n, 0.0], [0.0, 12.0 * var / (n * span * span)]])
+        self.last_k = int(k[-1])
+        self.outlier_run = 0
+        return True
+
+    def update(self, k: int, z: float, quality: float) -> TrackState:
+        """Fold in pulse ``k`` matched at phase ``z`` (cycles) with quality in [0, 1]."""
+        st = self.settings
+        self._recent.append((int(k), float(z), max(float(quality), 0.0)))
+        outlier = False
+        if self.x is None:
+            self._init()
+        else:
+            steps = max(int(k) - int(self.last_k), 1)
+            self.x, self.P = kalman_predict(self.x, self.P, st.q_rate, steps)
+            self.last_k = int(k)
+            r = self._r(quality)
+            nu, s = innovation(self.x, self.P, z, r)
+            slew = st.max_rate + 3.0 * math.sqrt(max(float(self.P[1, 1]), 0.0))
+            if nu * nu > st.gate_sigma ** 2 * s or abs(nu) > max(slew, 0.05):
+                outlier = True
+                self.outliers += 1
+                self.outlier_run += 1
+                if self.outlier_run >= st.reacquire_after:
+                    self.x = None
+                    self._init()
+            else:
+                self.x, self.P = kalman_update(self.x, self.P, z, r)
+                self.outlier_run = 0
+                self.updates += 1
+        if self.x is None:
+            return TrackState(int(k), float(z), float(quality), float("nan"), float("nan"),
+                              float("nan"), False, outlier, self.coherence)
+        return TrackState(int(k), float(z), float(quality), float(self.x[0]), float(self.x[1]),
+                          math.sqrt(max(float(self.P[1, 1]), 0.0)), True, outlier,
+                          self.coherence)
