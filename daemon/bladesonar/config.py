@@ -111,9 +111,9 @@ class TrackingSettings:
     slew_limit: float = opt(4.0, "largest |rate| relative to the reference the tracker "
                             "follows (the paper: 4 reference pulses per pulse)", lo=0.1,
                             hi=100.0)
-    rate_noise: float = opt(1e-7, "rate random-walk variance per pulse, in (reference "
-                            "cycles per pulse)^2: how fast the fan may speed up or slow down",
-                            lo=0.0, hi=1.0)
+    rate_noise: float = opt(0.0003, "rate random walk per pulse (standard deviation, in "
+                            "reference cycles per pulse): how fast the fan may speed up or "
+                            "slow down", lo=0.0, hi=0.5)
     meas_sigma: float = opt(0.02, "phase noise of a perfect match, in blade periods; scaled "
                             "by 1/match quality", lo=1e-6, hi=0.5)
     gate_sigma: float = opt(4.0, "innovation gate: matches further than this many standard "
