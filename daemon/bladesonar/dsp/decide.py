@@ -10,8 +10,9 @@ Two independent pieces of evidence:
   decided from this, never from a small, noisy rate.
 * The track (:mod:`tracking`): phase rate w (reference cycles per pulse) and its standard
   deviation. The sign is trusted by ``p = Phi(|w| / sd)``, the probability that the sign
-  is right under the filter's own uncertainty; confidence combines it with the share of
-  pulses the filter accepted and the match quality.
+  is right under the filter's own uncertainty; confidence is ``2 p - 1`` times the
+  quality-weighted share of recent matches the filter accepted (and scaled down further
+  when matches are on average barely better than chance).
 
 ``unknown`` when the evidence is too weak: no lock, low confidence, or a scene that cannot
 be seen at all (only noise in the gate: neither stopped nor moving can be told).
@@ -118,7 +119,7 @@ class DecideSettings:
     scene_threshold: float = 4.0
     min_confidence: float = 0.5
     slew_limit: float = 4.0
-    good_quality: float = 0.3
+    good_quality: float = 0.02
 
 
 @dataclass
@@ -159,9 +160,10 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     locked : bool
         Whether the tracker holds a track.
     accepted : float
-        Share of recent matches the tracker accepted, in [0, 1].
+        Share of recent matches (weighted by quality squared, as the filter weighs them) the tracker accepted, in [0, 1].
     quality : float
-        Mean match contrast of recent pulses, in [0, 1].
+        Mean match contrast of recent pulses, in [0, 1]; below ``good_quality`` it scales
+        the confidence down (a scene hardly visible).
     motion, scene : float
         From :class:`MotionMeter` (NaN if not yet known).
     ref_cycles_per_pulse, ref_rate_hz : float
@@ -185,8 +187,10 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     rel = rate / ref_cycles_per_pulse
     rel_std = rate_std / ref_cycles_per_pulse
     p_sign = _phi(abs(rate) / rate_std) if rate_std > 0 else 1.0
-    conf = (2.0 * p_sign - 1.0) * min(max(accepted, 0.0), 1.0) * min(
-        max(quality / s.good_quality, 0.0), 1.0)
+    conf = (2.0 * p_sign - 1.0) * min(max(accepted, 0.0), 1.0)
+    if quality < s.good_quality:
+        # matches barely better than chance on average: the scene is hardly visible
+        conf *= max(quality, 0.0) / s.good_quality
     if abs(rel) > s.slew_limit:
         warnings.append(f"|relative rate| {abs(rel):.2f} exceeds the slew limit "
                         f"{s.slew_limit:g}: re-record the reference nearer this speed")

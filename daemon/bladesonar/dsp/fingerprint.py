@@ -143,8 +143,10 @@ class Matches:
     phase : ndarray, shape (n,)
         Matched blade phase, cycles in [0, 1) (sub-bin by a parabola).
     quality : ndarray, shape (n,)
-        Contrast ``1 - d_best / median_b d_b`` in [0, 1]: near 0 for a vector that is as
-        far from every table row (noise), towards 1 for a clear match.
+        Contrast ``1 - d_best / d_far`` in [0, 1], where ``d_far`` is the best distance
+        among bins more than 1/8 period away from the best one: near 0 for noise and for
+        an ambiguous match (several distant angles fit as well, e.g. while no blade echo
+        is visible), towards 1 for a clear, unique match.
     distance : ndarray, shape (n,)
         Best squared distance (energy norm).
     """
@@ -186,9 +188,11 @@ def match(features: np.ndarray, table: np.ndarray, table_sq: np.ndarray | None =
     with np.errstate(divide="ignore", invalid="ignore"):
         delta = np.where(den > 0, 0.5 * (dm - dp) / den, 0.0)
     delta = np.clip(delta, -0.5, 0.5)
-    med = np.median(d, axis=1)
+    excl = max(1, bins // 8)
+    off = (np.arange(bins)[None, :] - b[:, None] + bins // 2) % bins - bins // 2
+    far = np.where(np.abs(off) > excl, d, np.inf).min(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        q = np.where(med > 0, 1.0 - d0 / med, 0.0)
+        q = np.where(np.isfinite(far) & (far > 0), 1.0 - d0 / far, 0.0)
     return Matches(phase=np.mod((b + delta) / bins, 1.0), quality=np.clip(q, 0.0, 1.0),
                    distance=d0)
 

@@ -1,0 +1,399 @@
+"""Angular fingerprinting, orchestrated: reference building and analysis (pure, no I/O).
+
+build_reference:  align -> gate (given, or from the target's doppler energy) -> period
+                  (blade-pass rate, refined) -> fold all periods into an angular table.
+analyze:          align -> remove the running static part -> envelope features -> match
+                  -> Kalman track -> motion evidence -> decision.
+
+Per pulse, analysis costs an alignment of the gated window, one envelope (FFT of the gate),
+one row of a matrix product against the table, a 2x2 Kalman step and ``max_lag`` vector
+differences; the range-doppler map and the period search run only at reference time. The
+daemon runs the same stages pulse by pulse through :class:`PulseAnalyzer`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.signal import lfilter
+
+from .config import Config
+from .dsp import fingerprint as fp
+from .dsp.decide import DecideSettings, Decision, MotionMeter, decide
+from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
+from .dsp.period import estimate_period
+from .dsp.pulses import OK, STATUS_NAMES, WARMUP, AlignedPulses, PulseAligner, align, \
+    check_recording
+from .dsp.rangedoppler import range_doppler
+from .dsp.tracking import Tracker, TrackerSettings
+from .errors import EstimationError, InputError, ReferenceFileError
+
+#: Version of the reference contents; bump when the table's meaning changes.
+REFERENCE_VERSION = 1
+
+
+@dataclass
+class Reference:
+    """A stored reference rotation: the angular table and what it depends on.
+
+    Attributes
+    ----------
+    table : ndarray, shape (B, L)
+        Feature vectors by blade phase (bin b at phase b/B).
+    mean_pulse : ndarray, shape (L,)
+        The reference's static part (mean gated pulse).
+    meta : dict
+        JSON-able: ``depends`` (config values that must match at analysis), blade and
+        rotation rate, direction, periods folded, quality, gate, ...
+    """
+
+    table: np.ndarray
+    mean_pulse: np.ndarray
+    meta: dict[str, Any]
+
+    @property
+    def cycles_per_pulse(self) -> float:
+        return float(self.meta["cycles_per_pulse"])
+
+    @property
+    def gate(self) -> Gate:
+        d = self.meta["depends"]
+        return Gate(int(self.meta["gate_samples"][0]), int(self.meta["gate_samples"][1]),
+                    float(d["audio.sample_rate"]), float(d["scene.speed_of_sound"]))
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON summary ``bladesonar reference`` prints."""
+        m = self.meta
+        keys = ("blade_rate_hz", "rate_hz", "rpm", "periods_folded", "quality", "gate_m",
+                "pulses", "dropped_pulses", "direction", "phase_bins", "cycles_per_pulse",
+                "target_range_m", "line_snr", "features", "warnings")
+        return {k: m[k] for k in keys if k in m}
+
+
+def depends_on(cfg: Config) -> dict[str, Any]:
+    """Config values a reference is only valid with (checked when it is loaded)."""
+    return {"audio.sample_rate": cfg.audio.sample_rate,
+            "waveform.pri_samples": cfg.waveform.pri_samples,
+            "waveform.pulse": cfg.waveform.pulse,
+            "waveform.pulse_samples": cfg.waveform.pulse_samples,
+            "scene.blades": cfg.scene.blades,
+            "scene.speed_of_sound": cfg.scene.speed_of_sound,
+            "analysis.features": cfg.analysis.features,
+            "analysis.envelope_smooth": cfg.analysis.envelope_smooth}
+
+
+def check_compatible(ref: Reference, cfg: Config) -> None:
+    """Raise ReferenceFileError naming the first config value that differs from the
+    reference's (and both values); an explicit gate must match the stored one."""
+    want = depends_on(cfg)
+    have = ref.meta.get("depends", {})
+    for key, value in want.items():
+        if key not in have:
+            raise ReferenceFileError(f"the reference does not record {key}; make it again "
+                                     "with 'bladesonar reference'")
+        if have[key] != value:
+            raise ReferenceFileError(
+                f"the reference was made with {key} = {have[key]!r} but the config says "
+                f"{value!r}; use the same config or record a new reference")
+    g = ref.gate
+    for key, val, stored in (("scene.gate_start_m", cfg.scene.gate_start_m, g.start),
+                             ("scene.gate_stop_m", cfg.scene.gate_stop_m, g.stop)):
+        if val is None:
+            continue
+        try:
+            mine = make_gate(cfg.scene.gate_start_m or 0.0, cfg.scene.gate_stop_m,
+                             c=cfg.scene.speed_of_sound, fs=cfg.audio.sample_rate,
+                             pri=cfg.waveform.pri_samples)
+        except ValueError as exc:
+            raise InputError(str(exc)) from exc
+        now = mine.start if key.endswith("start_m") else mine.stop
+        if now != stored:
+            raise ReferenceFileError(
+                f"the reference was made with {key} = {ref.meta['gate_m'][0 if key.endswith('start_m') else 1]:g} m "
+                f"but the config says {val:g} m; use the same gate or record a new reference")
+
+
+def _gate_for_reference(cfg: Config, full: AlignedPulses, prf: float) -> tuple[Gate, float | None]:
+    s, fs, c, pri = cfg.scene, cfg.audio.sample_rate, cfg.scene.speed_of_sound, \
+        cfg.waveform.pri_samples
+    target = s.target_range_m
+    start_m = s.gate_start_m
+    if start_m is None:
+        if target is None:
+            v = full.valid
+            _, power = range_doppler(full.pulses[v], prf)
+            target = find_target_range(power, fs, c)
+        start_m = max(target - cfg.analysis.gate_margin_m, 0.0)
+    try:
+        return make_gate(start_m, s.gate_stop_m, c=c, fs=fs, pri=pri), target
+    except ValueError as exc:
+        raise InputError(f"range gate: {exc}") from exc
+
+
+def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> Reference:
+    """Make a reference from a recording of the fan turning at a steady rate.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n_samples,)
+        Mono recording, float64 in [-1, 1].
+    cfg : Config
+        Validated settings.
+    direction : {"cw", "ccw", "unknown"}
+        The reference's known rotation (seen from the sensor), for absolute answers.
+
+    Raises
+    ------
+    InputError, EstimationError
+    """
+    if direction not in ("cw", "ccw", "unknown"):
+        raise ValueError("direction must be cw, ccw or unknown")
+    a = cfg.analysis
+    fs, pri = cfg.audio.sample_rate, cfg.waveform.pri_samples
+    prf = cfg.prf_hz
+    warnings = check_recording(x, pri=pri, min_pulses=a.min_pulses,
+                               max_clip_fraction=a.max_clip_fraction)
+    full_gate = Gate(0, max_gate_stop(pri), float(fs), cfg.scene.speed_of_sound)
+    full = align(x, pri, full_gate)
+    v = full.valid
+    if v.sum() < a.min_pulses:
+        raise InputError(f"only {int(v.sum())} usable pulses (of {len(full)}); at least "
+                         f"{a.min_pulses} are needed: record longer or fix the drop-outs")
+    gate, target = _gate_for_reference(cfg, full, prf)
+    pulses = full.pulses[:, gate.start:gate.stop]
+    k = full.index[v]
+    xv = pulses[v]
+    mean_pulse = xv.mean(axis=0)
+    feats = fp.envelope_features(xv, mean_pulse, kind=a.features, smooth=a.envelope_smooth)
+    y = np.zeros_like(pulses)
+    y[v] = xv - mean_pulse
+    f_all = np.zeros_like(pulses)
+    f_all[v] = feats - feats.mean(axis=0)
+    est = estimate_period(y, full.index, features=f_all, min_periods=a.min_periods,
+                          max_cycles_per_pulse=a.max_phase_per_pulse,
+                          line_snr_min=a.line_snr_min)
+    r = est.cycles_per_pulse
+    bins = fp.auto_bins(r, a.phase_bins)
+    phases = fp.fold_phases(k, r)
+    table, weight = fp.build_table(feats, phases, bins)
+    quality = fp.explained_fraction(feats, table, phases)
+    blade_hz = r * prf
+    rate_hz = blade_hz / cfg.scene.blades
+    dropped = int(np.count_nonzero((full.status != OK) & (full.status != WARMUP)))
+    if dropped:
+        warnings.append(f"{dropped} pulses dropped or corrupt (not used)")
+    meta = {
+        "format": "bladesonar-reference", "version": REFERENCE_VERSION,
+        "depends": depends_on(cfg),
+        "gate_samples": [gate.start, gate.stop],
+        "gate_m": [round(gate.start_m, 4), round(gate.stop_m, 4)],
+        "range_convention": "one-way range = c * delay / 2 from the direct-coupling edge",
+        "cycles_per_pulse": r, "blade_rate_hz": blade_hz, "rate_hz": rate_hz,
+        "rpm": rate_hz * 60.0, "prf_hz": prf,
+        "periods_folded": round(float(est.periods), 3), "phase_bins": bins,
+        "quality": round(quality, 4), "line_snr": round(est.line_snr, 2),
+        "explained_lines": round(est.explained, 4),
+        "direction": direction, "pulses": int(len(full)), "used_pulses": int(v.sum()),
+        "dropped_pulses": dropped,
+        "target_range_m": None if target is None else round(float(target), 4),
+        "features": a.features, "min_bin_weight": round(float(weight.min()), 3),
+        "warnings": warnings,
+    }
+    return Reference(table=table, mean_pulse=mean_pulse, meta=meta)
+
+
+# --------------------------------------------------------------------------------------
+# Analysis
+
+
+def tracker_settings(cfg: Config, ref: Reference) -> TrackerSettings:
+    """Tracker tuning from the config, with the slew bound from the reference's rate."""
+    t = cfg.tracking
+    max_rate = min(t.slew_limit * ref.cycles_per_pulse, 0.45)
+    return TrackerSettings(max_rate=max_rate, q_rate=t.rate_noise ** 2,
+                           meas_sigma=t.meas_sigma, gate_sigma=t.gate_sigma,
+                           reacquire_after=t.reacquire_after, init_pulses=t.init_pulses,
+                           min_coherence=t.min_coherence)
+
+
+def decide_settings(cfg: Config) -> DecideSettings:
+    t = cfg.tracking
+    return DecideSettings(motion_threshold=t.motion_threshold, min_confidence=t.min_confidence,
+                          slew_limit=t.slew_limit)
+
+
+class StaticRemover:
+    """Running mean pulse (the static room) subtracted from each pulse, state in and out.
+
+    An exponential average with time constant ``window`` pulses; each pulse is compared
+    with the average of the pulses *before* it. ``prime`` starts the average from a block
+    of pulses (the daemon's warm-up; offline, the first window of the recording).
+    """
+
+    def __init__(self, alpha: float, mean: np.ndarray) -> None:
+        self.alpha = float(alpha)
+        self.mean = np.asarray(mean, dtype=np.float64).copy()
+
+    def __call__(self, pulses: np.ndarray) -> np.ndarray:
+        """Residuals of a block of consecutive pulses, shape (n, L); updates the state."""
+        x = np.asarray(pulses, dtype=np.float64)
+        if len(x) == 0:
+            return x.copy()
+        a = self.alpha
+        zi = ((1.0 - a) * self.mean)[None, :]
+        s, _ = lfilter([a], [1.0, a - 1.0], x, axis=0, zi=zi)
+        prev = np.vstack([self.mean[None, :], s[:-1]])
+        self.mean = s[-1].copy()
+        return x - prev
+
+
+@dataclass
+class PulseAnalyzer:
+    """Streaming analysis of aligned pulses (what the daemon runs pulse by pulse).
+
+    Feed blocks of :class:`AlignedPulses` to :meth:`process`; each returns per-pulse
+    rows; :meth:`decision` gives the answer for the last ``window`` pulses.
+    """
+
+    cfg: Config
+    ref: Reference
+    static: StaticRemover
+    tracker: Tracker = field(init=False)
+    motion: MotionMeter = field(init=False)
+    window: int = field(init=False)
+    _recent: list = field(default_factory=list)  # (accepted, quality) of recent pulses
+    _prev: np.ndarray | None = None               # last raw pulse (for the noise level)
+    _noise: float = float("nan")                  # running raw half lag-1 difference energy
+    dropped: int = 0
+    seen: int = 0
+
+    def __post_init__(self) -> None:
+        self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
+        self.window = max(int(round(self.cfg.daemon.window_s * self.cfg.prf_hz)), 20)
+        self.motion = MotionMeter(self.ref.table.shape[1], self.window,
+                                  max_lag=min(32, self.window - 2))
+        self._tsq = (self.ref.table ** 2).sum(axis=1)
+
+    def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict]:
+        """Match, track and measure motion for a block of pulses; optional per-pulse rows."""
+        a = self.cfg.analysis
+        v = block.valid
+        self.seen += len(block)
+        self.dropped += int(np.count_nonzero((block.status != OK) & (block.status != WARMUP)))
+        if not v.any():
+            return []
+        xv = block.pulses[v]
+        res = self.static(xv)
+        feats = fp.envelope_features(res, np.zeros(res.shape[1]), kind=a.features,
+                                     smooth=a.envelope_smooth)
+        m = fp.match(feats, self.ref.table, self._tsq)
+        out = []
+        fs = self.cfg.audio.sample_rate
+        for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v])):
+            st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
+            self.motion.update(feats[i])
+            if self._prev is not None:
+                dd = xv[i] - self._prev
+                e = 0.5 * float(dd @ dd)
+                self._noise = e if not math.isfinite(self._noise) else (
+                    self._noise + (e - self._noise) / self.window)
+            self._prev = xv[i]
+            self._recent.append((not st.outlier and st.locked, float(m.quality[i])))
+            if len(self._recent) > self.window:
+                del self._recent[0]
+            if rows:
+                d = self.decision()
+                row = {"t_s": round(float(edge) / fs, 4), "pulse": int(k),
+                       "phase": round(float(m.phase[i]), 4),
+                       "quality": round(float(m.quality[i]), 4),
+                       "track_phase": None if not st.locked else round(st.phase, 4),
+                       "outlier": st.outlier}
+                row.update(d.as_dict())
+                out.append(row)
+        return out
+
+    def decision(self) -> Decision:
+        """The answer for the last ``window`` pulses."""
+        motion, _ = self.motion.statistic()
+        # scene: static echo energy over the noise per pulse (raw domain); while nothing
+        # changes between pulses, lag-1 differences of raw pulses are pure noise
+        st = self.static.mean
+        scene = float(st @ st) / self._noise if self._noise > 0 else float("nan")
+        acc = np.array([r[0] for r in self._recent], dtype=np.float64)
+        qual = np.array([r[1] for r in self._recent], dtype=np.float64)
+        # share of the informative matches that the track accepted, each weighted like the
+        # filter weighs it (1 / measurement variance, i.e. quality squared)
+        wq = qual * qual
+        accepted = float((acc * wq).sum() / wq.sum()) if wq.sum() > 1e-12 else 0.0
+        x = self.tracker.x
+        locked = x is not None
+        rate = float(x[1]) if locked else float("nan")
+        sd = math.sqrt(max(float(self.tracker.P[1, 1]), 0.0)) if locked else float("nan")
+        return decide(rate=rate, rate_std=sd, locked=locked,
+                      accepted=accepted,
+                      quality=float(qual.mean()) if len(qual) else 0.0,
+                      motion=motion, scene=scene,
+                      ref_cycles_per_pulse=self.ref.cycles_per_pulse,
+                      ref_rate_hz=float(self.ref.meta["rate_hz"]),
+                      ref_direction=self.ref.meta.get("direction", "unknown"),
+                      settings=decide_settings(self.cfg))
+
+
+def new_analyzer(cfg: Config, ref: Reference, first: np.ndarray | None = None) -> PulseAnalyzer:
+    """A streaming analyzer; ``first`` (n, L) primes the static estimate (warm-up)."""
+    check_compatible(ref, cfg)
+    w = max(cfg.analysis.static_window_s * cfg.prf_hz, 1.0)
+    mean = ref.mean_pulse if first is None or len(first) == 0 else np.mean(first, axis=0)
+    return PulseAnalyzer(cfg, ref, StaticRemover(1.0 / w, mean))
+
+
+def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
+            ) -> tuple[dict[str, Any], list[dict]]:
+    """Direction and rate of a recording against a reference.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n_samples,)
+        Mono recording, float64.
+    cfg : Config
+    ref : Reference
+    track : bool
+        Also return one row per pulse with the running estimate.
+
+    Returns
+    -------
+    summary : dict
+        direction, rotation, relative_rate, rate_hz, rpm, confidence, pulses, ...
+    rows : list of dict
+        Per-pulse rows (empty unless ``track``).
+    """
+    check_compatible(ref, cfg)
+    a = cfg.analysis
+    pri = cfg.waveform.pri_samples
+    warnings = check_recording(x, pri=pri, min_pulses=a.min_pulses,
+                               max_clip_fraction=a.max_clip_fraction)
+    aligned = align(x, pri, ref.gate)
+    v = aligned.valid
+    if v.sum() < a.min_pulses:
+        raise InputError(f"only {int(v.sum())} usable pulses (of {len(aligned)}); at least "
+                         f"{a.min_pulses} are needed: record longer or fix the drop-outs")
+    w = int(max(round(a.static_window_s * cfg.prf_hz), 1))
+    an = new_analyzer(cfg, ref, aligned.pulses[v][:w])
+    rows = an.process(aligned, rows=track)
+    d = an.decision()
+    if an.dropped:
+        warnings.append(f"{an.dropped} pulses dropped or corrupt (skipped)")
+    warnings.extend(d.warnings)
+    summary = d.as_dict()
+    summary.update(pulses=int(len(aligned)), used_pulses=int(v.sum()),
+                   dropped_pulses=int(an.dropped),
+                   window_s=round(an.window / cfg.prf_hz, 3),
+                   outliers=int(an.tracker.outliers),
+                   clock_ppm=round((float(np.median(np.diff(aligned.edges[v])))
+                                    / pri - 1.0) * 1e6, 1) if v.sum() > 2 else None,
+                   warnings=warnings)
+    return summary, rows
