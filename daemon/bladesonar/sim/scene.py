@@ -281,4 +281,9 @@ def _segments_cross(p1, p2, q1, q2) -> bool:
 
     d1, d2 = orient(q1, q2, p1), orient(q1, q2, p2)
     d3, d4 = orient(p1, p2, q1), orient(p1, p2, q2)
+    if d1 == d2 == d3 == d4 == 0:  # collinear: cross only if the spans overlap
+        ax = 0 if abs(p2[0] - p1[0]) >= abs(p2[1] - p1[1]) else 1
+        lo1, hi1 = sorted((p1[ax], p2[ax]))
+        lo2, hi2 = sorted((q1[ax], q2[ax]))
+        return max(lo1, lo2) <= min(hi1, hi2)
     return d1 * d2 <= 0 and d3 * d4 <= 0
