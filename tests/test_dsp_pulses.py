@@ -1,0 +1,152 @@
+"""Pulse alignment: geometry, drift, drop-outs, chunking, input checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bladesonar.dsp.gate import Gate, delay_to_range, make_gate, range_to_delay
+from bladesonar.dsp.pulses import DROPOUT, MISSING, OK, WARMUP, AlignedPulses, \
+    PulseAligner, align, check_recording
+from bladesonar.errors import InputError
+from synth_pulses import add_pulse, pulse_train
+
+PRI = 1297
+FS = 44100.0
+C = 343.0
+
+
+def _gate(start=0.3, stop=None):
+    return make_gate(start, stop, c=C, fs=FS, pri=PRI)
+
+
+def test_echo_at_known_delay_lands_at_its_range():
+    """An echo 2 r / c after the direct pulse shows up at range r in the gated window."""
+    r_true = 2.5
+    delay = range_to_delay(r_true, C, FS)            # 642.86 samples, not on the grid
+    x = np.zeros(PRI * 12)
+    for k in range(10):
+        e = 200.37 + k * PRI
+        add_pulse(x, e, 0.8)
+        add_pulse(x, e + delay, 0.1)
+    g = _gate(1.0, 4.0)
+    a = align(x, PRI, g)
+    p = a.pulses[a.valid][3]
+    i = int(np.argmax(p))
+    # sub-sample peak by a parabola on the aligned (band-limited) samples
+    y0, y1, y2 = p[i - 1], p[i], p[i + 1]
+    frac = 0.5 * (y0 - y2) / (y0 - 2 * y1 + y2)
+    r = delay_to_range(g.start + i + frac, C, FS)
+    assert abs(r - r_true) < 0.002                    # 2 mm = 0.5 sample
+    assert abs(a.edges[3] - (200.37 + 3 * PRI)) < 0.05
+
+
+def test_chunked_alignment_equals_one_shot():
+    x, _, _ = pulse_train(40, PRI, rate=0.07, drift_ppm=120, noise=1e-3, seed=1)
+    g = _gate()
+    whole = align(x, PRI, g)
+    al = PulseAligner(PRI, g)
+    rng = np.random.default_rng(5)
+    parts, i = [], 0
+    while i < len(x):
+        n = int(rng.integers(1, 3000))
+        parts.append(al.push(x[i:i + n]))
+        i += n
+    parts.append(al.flush())
+    chunked = AlignedPulses.concat(parts, g.length)
+    assert len(chunked) == len(whole) >= 39
+    np.testing.assert_array_equal(chunked.edges, whole.edges)
+    np.testing.assert_array_equal(chunked.status, whole.status)
+    np.testing.assert_array_equal(chunked.pulses, whole.pulses)
+
+
+@pytest.mark.parametrize("ppm", [200.0, -200.0])
+def test_200ppm_drift_stays_aligned(ppm):
+    """0.26 sample per pulse of clock mismatch: every edge within 0.05 sample of truth."""
+    n = 120
+    x, edges, _ = pulse_train(n, PRI, rate=0.05, drift_ppm=ppm, noise=2e-3, seed=2,
+                              first_edge=431.6)
+    a = align(x, PRI, _gate())
+    ok = a.status == OK
+    assert ok.sum() >= n - 3
+    err = a.edges[ok] - edges[a.index[ok]]
+    assert np.max(np.abs(err)) < 0.05
+    # the static echo 500 samples after the edge is in the same gated sample in every pulse
+    g = _gate()
+    d = 500 * (1 + ppm * 1e-6)                        # the static echo's capture delay
+    col = int(round(d))
+    vals = a.pulses[ok][:, col - g.start]
+    expect = -0.1 * np.sinc(d - col)                  # band-limited pulse read off-peak
+    assert abs(np.mean(vals) - expect) < 0.005
+    assert np.std(vals) < 1.5 * 2e-3                  # no more spread than the noise
+
+
+def test_dropout_is_reported_and_later_pulses_stay_aligned():
+    n = 60
+    x, edges, _ = pulse_train(n, PRI, rate=0.05, noise=1e-3, seed=3, first_edge=250.2)
+    cut_at, cut = int(edges[30] + 700), 411          # samples lost inside pulse 30
+    y = np.concatenate([x[:cut_at], x[cut_at + cut:]])
+    a = align(y, PRI, _gate())
+    st = dict(zip(a.index.tolist(), a.status.tolist()))
+    assert st[30] in (DROPOUT, MISSING)
+    assert all(st[k] == OK for k in range(1, 29))
+    later = [k for k in a.index if k > 31 and st[int(k)] == OK]
+    assert len(later) >= 25
+    # after the gap, edges sit 'cut' samples earlier than the undisturbed truth
+    for k in later:
+        i = int(np.nonzero(a.index == k)[0][0])
+        true = edges[k] - cut
+        # the pulse count continues across the gap (one pulse per PRI found)
+        assert abs(a.edges[i] - true) < 0.05 or abs(a.edges[i] - (true + PRI)) < 0.05
+
+
+def test_zeroed_gap_marks_pulses_not_ok():
+    x, edges, _ = pulse_train(30, PRI, rate=0.05, noise=1e-3, seed=4)
+    s = int(edges[10] - 50)
+    x[s:s + 3 * PRI] = 0.0
+    a = align(x, PRI, _gate())
+    bad = set(a.index[a.status != OK].tolist())
+    assert {10, 11, 12} <= bad
+    assert a.status[list(a.index).index(20)] == OK
+
+
+def test_first_pulse_is_warmup_and_rows_of_bad_pulses_are_zero():
+    x, _, _ = pulse_train(10, PRI, rate=0.05)
+    a = align(x, PRI, _gate())
+    assert a.status[0] == WARMUP
+    assert not a.pulses[0].any()
+
+
+def test_no_direct_pulse_is_refused():
+    x = np.random.default_rng(0).standard_normal(PRI * 20) * 0.01
+    with pytest.raises(InputError, match="no direct-coupling pulse"):
+        align(x, PRI, _gate())
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda x: np.where(np.arange(len(x)) == 500, np.nan, x), "NaN"),
+    (lambda x: x * 0.0, "silent"),
+    (lambda x: np.clip(x * 1000, -1, 1), "overloaded"),
+    (lambda x: x[:PRI * 10], "pulses"),
+])
+def test_input_checks_refuse_with_a_clear_message(make, match):
+    x, _, _ = pulse_train(80, PRI, rate=0.05, noise=1e-3)
+    with pytest.raises(InputError, match=match):
+        check_recording(make(x), pri=PRI, min_pulses=64)
+
+
+def test_mild_clipping_is_a_warning():
+    x, _, _ = pulse_train(80, PRI, rate=0.05, noise=1e-3)
+    x[1000] = 1.0
+    w = check_recording(x, pri=PRI, min_pulses=64)
+    assert w and "clipped" in w[0]
+
+
+def test_gate_rounds_outward_and_refuses_beyond_one_pri():
+    g = make_gate(1.0, 4.5, c=C, fs=FS, pri=PRI)
+    assert g.start_m <= 1.0 < g.start_m + delay_to_range(1, C, FS)
+    assert g.stop_m >= 4.5
+    assert make_gate(1.0, None, c=C, fs=FS, pri=PRI).stop == PRI - 24
+    with pytest.raises(ValueError):
+        make_gate(6.0, None, c=C, fs=FS, pri=PRI)
+    assert isinstance(g, Gate)
