@@ -148,9 +148,9 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
         Pulse numbers of the rows (default 0..n-1); only rows with nonzero data are used in
         the refinement.
     features : ndarray, shape (n_pulses, m), optional
-        Vectors in which the echo pattern is a continuous function of angle (envelopes, see
-        fingerprint.py), used to tell the fundamental from its sub-harmonics and aliases;
-        default ``y``. Rows of missing pulses are zero.
+        Vectors in which the echo pattern is a smooth function of angle (mean-removed
+        envelopes, see fingerprint.py); when given, every step runs on them instead of
+        ``y``. Rows of missing pulses are zero.
     min_periods : float
         Fewest blade periods the record must span.
     max_cycles_per_pulse : float
@@ -166,6 +166,11 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
     EstimationError
         Stationary target, aliased rate, or too few periods.
     """
+    if features is not None:
+        # everything runs on the features: a raw echo that moves by several samples per
+        # blade period spreads its energy over many aliased harmonics (a high floor),
+        # its envelope gives a few clean lines
+        y = features
     y = np.asarray(y, dtype=np.float64)
     n = y.shape[0]
     if k is None:
@@ -217,33 +222,72 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
     rows = np.any(y != 0.0, axis=1)
     z = principal_series(y[rows])
     kr = np.asarray(k)[rows]
-    zf = z if features is None else principal_series(np.asarray(features, np.float64)[rows])
+    zf = z
 
-    def roughness(r: float, bins: int = 64) -> float:
-        # folding dispersion: fold the pulses by their phase under r into bins and compare
-        # neighbouring bins, relative to the spread of the bins (1 for a random order). The
-        # echo pattern is a continuous function of the angle, so only the true rate makes
-        # neighbours alike: a sub-harmonic (r/2, or an alias like (1 - r)/2) puts
-        # neighbours twice as far apart in angle, a harmonic mixes different angles, and an
-        # exactly periodic record (r = j/P pulses, every j alike in the spectrum) is ordered
-        # right only by its true j.
-        b = np.floor(np.mod(kr * r, 1.0) * bins).astype(np.int64)
+    total_var = float((zf * zf).sum()) + 1e-300
+    span = float(np.max(k) - np.min(k) + 1)
+
+    def fold(r: float, bins: int) -> tuple[np.ndarray, np.ndarray, float]:
+        """Bin means (filled bins only, in phase order), all counts, within-bin energy."""
+        b = np.floor(np.mod(kr * r, 1.0) * bins).astype(np.int64) % bins
         cnt = np.bincount(b, minlength=bins)
         sums = np.zeros((bins, zf.shape[1]))
         np.add.at(sums, b, zf)
         full = cnt > 0
-        t = sums[full] / cnt[full, None]
+        means = np.zeros_like(sums)
+        means[full] = sums[full] / cnt[full, None]
+        within = float(((zf - means[b]) ** 2).sum())
+        return means, cnt, within
+
+    def dispersion(r: float) -> float:
+        # folding dispersion: energy left within the phase bins over the total. A harmonic
+        # of the true rate puts different angles into one bin and leaves much more.
+        # (the minimum over a few nearby rates, as a coarse candidate is only known to
+        # about 1/(16 N) and its fold would smear otherwise)
+        offs = np.array([-1.0, -0.5, 0.0, 0.5, 1.0]) / (16.0 * span)
+        return min(fold(r + o, 32)[2] for o in offs) / total_var
+
+    def roughness(r: float, bins: int = 64) -> float:
+        # neighbouring bins compared, relative to the spread of the bins (1 for a random
+        # order). The echo pattern is a continuous function of the angle, so only the true
+        # rate makes neighbours alike; an exactly periodic record (r = j/P, every j alike
+        # in the spectrum and in dispersion) is ordered right only by its true j.
+        means, cnt, _ = fold(r, bins)
+        t = means[cnt > 0]
         if len(t) < 3:
             return np.inf
         d = float(((np.roll(t, -1, axis=0) - t) ** 2).sum())
         e = float(((t - t.mean(axis=0)) ** 2).sum())
         return d / (2.0 * e) if e > 0 else np.inf
 
+    def repeats_within(r: float, m: int, per: int = 16) -> bool:
+        # is the fold at r made of m copies (r is a sub-harmonic: r/m, or an alias such
+        # as (1 - r)/2)? Compare the table with itself shifted by 1/m period.
+        means, cnt, _ = fold(r, m * per)
+        both = (cnt > 0) & (np.roll(cnt, -per) > 0)
+        if both.sum() < per:
+            return False
+        t = means[both]
+        sh = np.roll(means, -per, axis=0)[both]
+        d = float(((sh - t) ** 2).sum())
+        e = float(((t - t.mean(axis=0)) ** 2).sum())
+        return e > 0 and d / (2.0 * e) < 0.2
+
     scores = np.array([explained(r) for r in cands])
     best = float(scores.max())
     ok = np.unique(np.round(cands[scores >= explain_tol * best], 5))
+    disp = np.array([dispersion(r) for r in ok])
+    ok = ok[disp <= 1.2 * disp.min() + 0.02]
     rough = np.array([roughness(r) for r in ok])
     r0 = float(ok[int(np.argmin(rough))])
+    climbed = True
+    while climbed:
+        climbed = False
+        for m in range(2, max_harmonic + 1):
+            rm = float(_fold(m * r0))
+            if rm > r0 and repeats_within(r0, m):
+                r0, climbed = rm, True
+                break
     if r0 > max_cycles_per_pulse:
         raise EstimationError(
             f"the blade phase advances {r0:.2f} cycles per pulse (limit "

@@ -1,0 +1,70 @@
+"""Blade-pass rate: sub-bin accuracy, harmonic-vs-fundamental, refusals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bladesonar.dsp.fingerprint import envelope_features
+from bladesonar.dsp.period import estimate_period
+from bladesonar.errors import EstimationError
+from synth_pulses import fan_pulse
+
+L = 1000
+
+
+def _pulses(rate, n, noise=0.004, seed=0, pattern=fan_pulse):
+    rng = np.random.default_rng(seed)
+    ph = np.mod(0.13 + rate * np.arange(n), 1.0)
+    x = np.array([pattern(p, L) for p in ph]) + noise * rng.standard_normal((n, L))
+    y = x - x.mean(axis=0)
+    f = envelope_features(x, x.mean(axis=0))
+    return y, f - f.mean(axis=0)
+
+
+@pytest.mark.parametrize("rate", [0.0617, 0.1333, 0.2871])
+def test_refined_rate_error_is_far_below_one_bin(rate):
+    """Non-integer period (e.g. 16.2 pulses): error << one FFT bin (1/N cycles/pulse)."""
+    n = 300
+    y, f = _pulses(rate, n)
+    est = estimate_period(y, features=f)
+    assert abs(est.cycles_per_pulse - rate) < 0.02 / n
+
+
+def test_fundamental_is_found_when_a_harmonic_is_the_strongest_line():
+    """Echo amplitudes whose 2nd harmonic in angle dominates: the fundamental must win."""
+    from synth_pulses import add_pulse
+
+    def pattern(phase, length):
+        x = np.zeros(length)
+        for j, d in enumerate((310.0, 455.0, 620.0, 800.0)):
+            a = 0.04 * (1.2 + 0.35 * np.cos(2 * np.pi * (phase + 0.2 * j))
+                        + np.cos(2 * np.pi * (2 * phase + 0.37 * j)))
+            add_pulse(x, d + 2.0 * np.sin(2 * np.pi * (phase + 0.1 * j)), a)
+        return x
+    rate = 0.043
+    y, f = _pulses(rate, 400, pattern=pattern)
+    from bladesonar.dsp.period import doppler_spectrum
+    nu, s = doppler_spectrum(f)
+    strongest = nu[np.argmax(np.where(nu > 0.01, s, 0))]
+    assert abs(strongest - rate) > 0.01                 # the strongest line is a harmonic
+    est = estimate_period(y, features=f)
+    assert abs(est.cycles_per_pulse - rate) < 0.02 / 400
+
+
+def test_stationary_target_is_refused():
+    y, f = _pulses(0.0, 300)
+    with pytest.raises(EstimationError, match="stationary"):
+        estimate_period(y, features=f)
+
+
+def test_aliased_rate_is_refused():
+    y, f = _pulses(0.46, 300)
+    with pytest.raises(EstimationError, match="aliased"):
+        estimate_period(y, features=f)
+
+
+def test_too_few_periods_are_refused():
+    y, f = _pulses(0.05, 100)                   # 5 periods
+    with pytest.raises(EstimationError, match="5.0 blade periods"):
+        estimate_period(y, features=f, min_periods=6)
