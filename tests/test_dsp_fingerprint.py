@@ -1,0 +1,85 @@
+"""Angular table and matching."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bladesonar.dsp import fingerprint as fp
+from synth_pulses import fan_pulse
+
+L = 1000
+R_REF = 0.0437          # reference blade phase per pulse (non-integer period 22.9 pulses)
+
+
+def _reference(n=500, noise=0.003, kind="envelope", seed=0):
+    rng = np.random.default_rng(seed)
+    ph = fp.fold_phases(np.arange(n), R_REF)
+    x = np.array([fan_pulse(p, L) for p in ph]) + noise * rng.standard_normal((n, L))
+    mean = x.mean(axis=0)
+    f = fp.envelope_features(x, mean, kind=kind)
+    bins = fp.auto_bins(R_REF)
+    table, _ = fp.build_table(f, ph, bins)
+    return table, mean
+
+
+def _probe(phases, noise=0.003, jitter=0.0, seed=1):
+    rng = np.random.default_rng(seed)
+    j = jitter * rng.uniform(-1, 1, len(phases))
+    return np.array([fan_pulse(p, L, jitter=jj) for p, jj in zip(phases, j)]) + \
+        noise * rng.standard_normal((len(phases), L))
+
+
+def _circ_err(a, b):
+    return np.abs((np.asarray(a) - np.asarray(b) + 0.5) % 1.0 - 0.5)
+
+
+def test_matches_recover_the_true_phase_between_reference_pulses():
+    """Folding 20+ periods of a non-integer period fills in angles between pulses."""
+    table, mean = _reference()
+    truth = np.random.default_rng(3).uniform(0, 1, 200)
+    f = fp.envelope_features(_probe(truth), mean)
+    m = fp.match(f, table)
+    assert np.median(_circ_err(m.phase, truth)) < 0.01
+    assert np.percentile(_circ_err(m.phase, truth), 95) < 0.03
+    assert np.median(m.quality) > 0.3
+
+
+def test_order_of_input_pulses_does_not_change_matches():
+    table, mean = _reference()
+    truth = np.random.default_rng(4).uniform(0, 1, 64)
+    f = fp.envelope_features(_probe(truth), mean)
+    perm = np.random.default_rng(5).permutation(len(f))
+    a, b = fp.match(f, table), fp.match(f[perm], table)
+    np.testing.assert_array_equal(a.phase[perm], b.phase)
+    np.testing.assert_array_equal(a.quality[perm], b.quality)
+
+
+def test_noise_gets_low_quality():
+    table, mean = _reference()
+    noise = 0.01 * np.random.default_rng(6).standard_normal((100, L))
+    m = fp.match(fp.envelope_features(noise + mean, mean), table)
+    assert np.median(m.quality) < 0.15
+
+
+def test_envelope_beats_raw_under_jitter():
+    """Why envelopes: with up to 1.5 samples of echo jitter (residual misalignment,
+    clock drift inside a pulse, blade vibration) raw matching jumps to wrong angles for
+    a fifth of the pulses; envelope matching keeps every one within 5 % of a period."""
+    truth = np.random.default_rng(7).uniform(0, 1, 150)
+    probe = _probe(truth, jitter=1.5)
+    gross, med = {}, {}
+    for kind in ("envelope", "raw"):
+        table, mean = _reference(kind=kind)
+        m = fp.match(fp.envelope_features(probe, mean, kind=kind), table)
+        err = _circ_err(m.phase, truth)
+        gross[kind], med[kind] = np.mean(err > 0.05), np.median(err)
+    assert gross["envelope"] < 0.02 and med["envelope"] < 0.01
+    assert gross["raw"] > 0.1
+
+
+def test_table_fills_bins_nothing_fell_into():
+    f = np.array([[0.0, 0.0], [4.0, 8.0]])
+    table, w = fp.build_table(f, np.array([0.0, 0.5]), 4)
+    assert w[1] == 0 and w[3] == 0
+    np.testing.assert_allclose(table[1], [2.0, 4.0])
+    np.testing.assert_allclose(table[3], [2.0, 4.0])
