@@ -274,8 +274,12 @@ class PulseAnalyzer:
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
         self.window = max(int(round(self.cfg.daemon.window_s * self.cfg.prf_hz)), 20)
+        # lags up to the blade period at the slowest rate followed (reference rate / slew
+        # limit): at some lag within it a moving pattern recurs
+        slowest = self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit
+        lags = int(math.ceil(1.2 / max(slowest, 1e-6)))
         self.motion = MotionMeter(self.ref.table.shape[1], self.window,
-                                  max_lag=min(32, self.window - 2))
+                                  max_lag=max(4, min(lags, self.window // 2)))
         self._tsq = (self.ref.table ** 2).sum(axis=1)
 
     def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict]:

@@ -1,0 +1,61 @@
+"""Decision rules: stopped from no change, unknown from noise, absolute direction."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bladesonar.dsp.fingerprint import envelope_features
+from bladesonar.dsp.decide import DecideSettings, decide, motion_statistic
+from synth_pulses import fan_pulse
+
+L = 600
+
+
+def _common(**kw):
+    base = dict(rate=0.05, rate_std=0.002, locked=True, accepted=0.95, quality=0.5,
+                motion=3.0, scene=100.0, ref_cycles_per_pulse=0.05, ref_rate_hz=0.5,
+                ref_direction="ccw")
+    base.update(kw)
+    return decide(**base)
+
+
+def test_stopped_fan_shows_no_change_between_pulses():
+    rng = np.random.default_rng(0)
+    still = fan_pulse(0.3, L)
+    x = still[None, :] + 0.002 * rng.standard_normal((150, L))
+    # the analysis feeds envelope features (continuous in angle) to the motion meter
+    motion, _ = motion_statistic(envelope_features(x, x.mean(axis=0)))
+    assert motion < DecideSettings().motion_threshold
+    moving = np.array([fan_pulse(p, L) for p in np.mod(0.047 * np.arange(150), 1)])
+    moving = moving + 0.002 * rng.standard_normal((150, L))
+    # max_lag must exceed the period in pulses (21 here) for the pattern to recur
+    motion2, _ = motion_statistic(envelope_features(moving, moving.mean(axis=0)), max_lag=32)
+    assert motion2 > 2 * DecideSettings().motion_threshold
+
+
+def test_stopped_decision_ignores_a_noisy_rate():
+    d = _common(motion=1.01, rate=0.03, rate_std=0.01)
+    assert d.direction == "stopped" and d.relative_rate == 0.0 and d.confidence > 0.8
+
+
+def test_pure_noise_is_never_a_confident_answer():
+    # nothing in the gate: no change, but no scene either -> unknown
+    assert _common(motion=1.0, scene=0.01).direction == "unknown"
+    # a track that noise produced: rate not separated from zero -> unknown
+    d = _common(rate=0.004, rate_std=0.01, accepted=0.4)
+    assert d.direction == "unknown" and d.confidence < 0.5
+    assert _common(locked=False, rate=float("nan")).direction == "unknown"
+
+
+def test_direction_and_absolute_rotation():
+    d = _common(rate=-0.06)
+    assert (d.direction, d.rotation) == ("reversed", "cw")
+    assert abs(d.relative_rate + 1.2) < 1e-12 and abs(d.rate_hz - 0.6) < 1e-12
+    assert abs(d.rpm - 36.0) < 1e-9
+    d = _common(rate=0.05, ref_direction="unknown")
+    assert (d.direction, d.rotation) == ("same", None)
+
+
+def test_beyond_the_slew_limit_is_said():
+    d = _common(rate=0.25)
+    assert any("slew limit" in w for w in d.warnings)
