@@ -281,7 +281,7 @@ class PulseAligner:
         p = c - half + int(np.argmax(w))
         seg = self._polarity * self._seg(p - KERNEL_HALF, p + KERNEL_HALF + 1)
         off, height = refine_peak(seg)
-        if not (0.5 * self._amp <= height <= 1.6 * self._amp):
+        if not (0.7 * self._amp <= height <= 1.4 * self._amp):
             return None
         return p + off, height
 
