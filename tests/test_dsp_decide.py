@@ -59,3 +59,15 @@ def test_direction_and_absolute_rotation():
 def test_beyond_the_slew_limit_is_said():
     d = _common(rate=0.25)
     assert any("slew limit" in w for w in d.warnings)
+
+
+def test_motion_meter_blocks_equal_single_pulses():
+    from bladesonar.dsp.decide import MotionMeter
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal((90, 50))
+    a, b = MotionMeter(50, 40, 8), MotionMeter(50, 40, 8)
+    for row in x:
+        a.update(row)
+    for i in range(0, 90, 17):
+        b.update_block(x[i:i + 17])
+    np.testing.assert_allclose(a.statistic(), b.statistic(), rtol=1e-9)

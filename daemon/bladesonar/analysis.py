@@ -295,11 +295,14 @@ class PulseAnalyzer:
         feats = fp.envelope_features(res, np.zeros(res.shape[1]), kind=a.features,
                                      smooth=a.envelope_smooth)
         m = fp.match(feats, self.ref.table, self._tsq)
+        if not rows:
+            self.motion.update_block(feats)
         out = []
         fs = self.cfg.audio.sample_rate
         for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v])):
             st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
-            self.motion.update(feats[i])
+            if rows:
+                self.motion.update(feats[i])
             if self._prev is not None:
                 dd = xv[i] - self._prev
                 e = 0.5 * float(dd @ dd)
@@ -380,24 +383,48 @@ def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
     pri = cfg.waveform.pri_samples
     warnings = check_recording(x, pri=pri, min_pulses=a.min_pulses,
                                max_clip_fraction=a.max_clip_fraction)
-    aligned = align(x, pri, ref.gate)
-    v = aligned.valid
-    if v.sum() < a.min_pulses:
-        raise InputError(f"only {int(v.sum())} usable pulses (of {len(aligned)}); at least "
-                         f"{a.min_pulses} are needed: record longer or fix the drop-outs")
+    # stream the recording through the same stages the daemon runs, in blocks of pulses
+    # (bounded memory); the static estimate is primed from the first window of pulses
     w = int(max(round(a.static_window_s * cfg.prf_hz), 1))
-    an = new_analyzer(cfg, ref, aligned.pulses[v][:w])
-    rows = an.process(aligned, rows=track)
+    aligner = PulseAligner(pri, ref.gate)
+    block = 256 * pri
+    an: PulseAnalyzer | None = None
+    held: list[AlignedPulses] = []
+    rows: list[dict] = []
+    n_pulses = n_valid = 0
+    edges: list[np.ndarray] = []
+    for i in range(0, len(x) + block, block):
+        got = aligner.push(x[i:i + block]) if i < len(x) else aligner.flush()
+        if not len(got):
+            continue
+        n_pulses += len(got)
+        n_valid += int(got.valid.sum())
+        edges.append(got.edges[got.valid])
+        if an is None:
+            held.append(got)
+            if n_valid < w and i < len(x):
+                continue
+            first = np.concatenate([h.pulses[h.valid] for h in held])[:w]
+            an = new_analyzer(cfg, ref, first)
+            for h in held:
+                rows.extend(an.process(h, rows=track))
+            held = []
+        else:
+            rows.extend(an.process(got, rows=track))
+    if an is None or n_valid < a.min_pulses:
+        raise InputError(f"only {n_valid} usable pulses (of {n_pulses}); at least "
+                         f"{a.min_pulses} are needed: record longer or fix the drop-outs")
     d = an.decision()
     if an.dropped:
         warnings.append(f"{an.dropped} pulses dropped or corrupt (skipped)")
     warnings.extend(d.warnings)
+    e = np.concatenate(edges)
     summary = d.as_dict()
-    summary.update(pulses=int(len(aligned)), used_pulses=int(v.sum()),
+    summary.update(pulses=int(n_pulses), used_pulses=int(n_valid),
                    dropped_pulses=int(an.dropped),
                    window_s=round(an.window / cfg.prf_hz, 3),
                    outliers=int(an.tracker.outliers),
-                   clock_ppm=round((float(np.median(np.diff(aligned.edges[v])))
-                                    / pri - 1.0) * 1e6, 1) if v.sum() > 2 else None,
+                   clock_ppm=round((float(np.median(np.diff(e))) / pri - 1.0) * 1e6, 1)
+                   if len(e) > 2 else None,
                    warnings=warnings)
     return summary, rows

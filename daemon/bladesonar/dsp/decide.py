@@ -58,20 +58,32 @@ class MotionMeter:
     def update(self, x: np.ndarray) -> None:
         """Add one pulse, shape (length,). Lost pulses are not fed (a lag then spans the
         gap, which only blurs the statistic slightly)."""
-        x = np.asarray(x, dtype=np.float64)
-        i = self._n % self.window
-        j = self._n % (self.max_lag + 1)
-        lags = min(self._n, self.max_lag)
-        d = np.zeros(self.max_lag)
-        if lags:
-            idx = (j - np.arange(1, lags + 1)) % (self.max_lag + 1)
-            diff = self._x[idx] - x[None, :]
-            d[:lags] = 0.5 * np.einsum("ij,ij->i", diff, diff)
-        self._d[i] = d
-        self._e[i] = float(x @ x)
-        self._s[i] = x
-        self._x[j] = x
-        self._n += 1
+        self.update_block(np.asarray(x, dtype=np.float64)[None, :])
+
+    def update_block(self, xs: np.ndarray) -> None:
+        """Add consecutive pulses, shape (n, length): one matrix product for all lags."""
+        xs = np.asarray(xs, dtype=np.float64)
+        n = len(xs)
+        if n == 0:
+            return
+        M, ring = self.max_lag, self.max_lag + 1
+        h = min(self._n, M)                              # history pulses available
+        hist = self._x[(self._n - h + np.arange(h)) % ring] if h else np.zeros((0, xs.shape[1]))
+        ext = np.vstack([hist, xs])                      # (h + n, L), in time order
+        e_ext = np.einsum("ij,ij->i", ext, ext)
+        gram = ext @ xs.T                                # (h + n, n)
+        for i in range(n):
+            row = np.zeros(M)
+            pos = h + i                                  # index of pulse i in ext
+            m = np.arange(1, min(pos, M) + 1)
+            row[:len(m)] = 0.5 * (e_ext[pos] + e_ext[pos - m] - 2.0 * gram[pos - m, i])
+            j = (self._n + i) % self.window
+            self._d[j] = row
+            self._e[j] = e_ext[pos]
+            self._s[j] = xs[i]
+        for i in range(max(0, n - ring), n):
+            self._x[(self._n + i) % ring] = xs[i]
+        self._n += n
 
     @property
     def count(self) -> int:

@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import fft as sp_fft
 
 
 def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str = "envelope",
@@ -58,13 +59,13 @@ def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str =
     if kind != "envelope":
         raise ValueError(f"kind must be 'envelope' or 'raw', not {kind!r}")
     n, L = y.shape
-    nfft = 1 << int(np.ceil(np.log2(max(L, 2))))
-    spec = np.fft.fft(y, n=nfft, axis=1)
-    h = np.zeros(nfft)
-    h[0] = 1.0
-    h[1:nfft // 2] = 2.0
-    h[nfft // 2] = 1.0
-    env = np.abs(np.fft.ifft(spec * h, axis=1)[:, :L])
+    nfft = sp_fft.next_fast_len(L + 32)
+    spec = sp_fft.rfft(y, n=nfft, axis=1)
+    # analytic signal: positive frequencies doubled, negative ones zero
+    spec[:, 1:(nfft + 1) // 2] *= 2.0
+    full = np.zeros((n, nfft), dtype=complex)
+    full[:, :spec.shape[1]] = spec
+    env = np.abs(sp_fft.ifft(full, axis=1)[:, :L])
     if smooth > 1:
         c = np.cumsum(np.pad(env, ((0, 0), (smooth // 2 + 1, smooth - smooth // 2 - 1)),
                              mode="edge"), axis=1)
