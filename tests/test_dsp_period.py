@@ -68,3 +68,14 @@ def test_too_few_periods_are_refused():
     y, f = _pulses(0.05, 100)                   # 5 periods
     with pytest.raises(EstimationError, match="5.0 blade periods"):
         estimate_period(y, features=f, min_periods=6)
+
+
+def test_range_doppler_puts_a_modulated_sample_at_its_doppler_and_delay():
+    from bladesonar.dsp.rangedoppler import range_doppler
+    prf, n = 34.0, 256
+    x = np.zeros((n, 100))
+    x[:, 40] = np.cos(2 * np.pi * 3.0 * np.arange(n) / prf) + 5.0   # 3 Hz at delay 40
+    f, p = range_doppler(x, prf)
+    i, j = np.unravel_index(np.argmax(p), p.shape)
+    assert j == 40 and abs(abs(f[i]) - 3.0) <= prf / n
+    assert f[len(f) // 2] == 0.0 and p[len(f) // 2, 40] < 1e-6 * p.max()  # static removed
