@@ -318,6 +318,8 @@ class PulseAnalyzer:
                        "phase": round(float(m.phase[i]), 4),
                        "quality": round(float(m.quality[i]), 4),
                        "track_phase": None if not st.locked else round(st.phase, 4),
+                       "track_sd": None if not st.locked else round(
+                           math.sqrt(max(float(self.tracker.P[0, 0]), 0.0)), 5),
                        "outlier": st.outlier}
                 row.update(d.as_dict())
                 out.append(row)
