@@ -1,0 +1,64 @@
+"""Drawing only: matplotlib figures of what :mod:`bladesonar.imaging` and the report compute.
+
+matplotlib is the optional extra ``bladesonar[plots]``; it is imported here, on first use,
+with the non-interactive Agg backend, and never by the analysis or the daemon.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ..errors import BladesonarError
+
+SUFFIXES = {".png": "png", ".svg": "svg"}
+#: Default figure size (inches) and resolution: 800 x 500 pixels.
+FIGSIZE = (8.0, 5.0)
+DPI = 100
+
+
+class PlotsUnavailable(BladesonarError):
+    """matplotlib (the ``plots`` extra) is not installed."""
+
+
+def pyplot() -> Any:
+    """matplotlib.pyplot on the Agg backend, or a clear error naming the extra."""
+    try:
+        import matplotlib
+    except ImportError as exc:
+        raise PlotsUnavailable("pictures need matplotlib: install the plots extra, e.g. "
+                               "pip install 'bladesonar[plots]' (or tools/setup)") from exc
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def out_format(path: str | Path) -> str:
+    """'png' or 'svg' from the file suffix; anything else is refused before any work."""
+    suf = Path(path).suffix.lower()
+    if suf not in SUFFIXES:
+        from ..errors import InputError
+
+        raise InputError(f"--out {path}: the picture format comes from the suffix; use .png "
+                         "or .svg")
+    return SUFFIXES[suf]
+
+
+def save(fig: Any, path: str | Path) -> Path:
+    """Write the figure (format from the suffix), creating folders; close it."""
+    from ..errors import InputError
+
+    p = Path(path)
+    fmt = out_format(p)
+    plt = pyplot()
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(p, format=fmt, dpi=DPI, metadata={"Software": "bladesonar"} if fmt ==
+                    "png" else None)
+    except OSError as exc:
+        raise InputError(f"--out {p}: cannot be written ({exc.strerror}); choose a "
+                         "writable path") from exc
+    finally:
+        plt.close(fig)
+    return p
