@@ -282,19 +282,26 @@ def spokes(img: IsarImage, k: int, r_lo: float, r_hi: float, *, n_theta: int = 7
     return np.sort(th[found])
 
 
-def rotation_match(a: IsarImage, b: IsarImage, *, mirror: bool = False, n_theta: int = 720
-                   ) -> tuple[float, float]:
+def rotation_match(a: IsarImage, b: IsarImage, *, r_lo: float = 0.0, r_hi: float | None = None,
+                   mirror: bool = False, n_theta: int = 720) -> tuple[float, float]:
     """Best normalised correlation of two images over rotations about the fan centre, and
-    the rotation (rad) of ``b`` that gives it; ``mirror`` also tries ``b`` mirrored."""
-    _, _, pa = polar(a, n_theta=n_theta)
-    _, _, pb = polar(b, n_theta=n_theta)
+    the rotation (rad) of ``b`` that gives it; ``mirror`` also tries ``b`` mirrored.
+
+    Only the angular structure of the ring ``r_lo .. r_hi`` counts: each radius's mean over
+    angle is removed first (else the bright centre and the radial fall-off, which every
+    image has, would make any two images look alike).
+    """
+    r, _, pa = polar(a, n_r=96, n_theta=n_theta)
+    _, _, pb = polar(b, n_r=96, n_theta=n_theta, r_max=a.extent_m)
+    ring = (r >= r_lo) & (r <= (r_hi if r_hi is not None else r[-1]))
+    pa = pa[ring] - pa[ring].mean(axis=1, keepdims=True)
+    pb = pb[ring] - pb[ring].mean(axis=1, keepdims=True)
     best, best_rot = -1.0, 0.0
-    fa = np.fft.rfft(pa - pa.mean(), axis=1)
+    fa = np.fft.rfft(pa, axis=1)
     for flip in ((False, True) if mirror else (False,)):
         q = pb[:, ::-1] if flip else pb
-        fb = np.fft.rfft(q - q.mean(), axis=1)
-        cc = np.fft.irfft(fa * np.conj(fb), n=n_theta, axis=1).sum(axis=0)
-        den = math.sqrt(float(((pa - pa.mean()) ** 2).sum() * ((q - q.mean()) ** 2).sum()))
+        cc = np.fft.irfft(fa * np.conj(np.fft.rfft(q, axis=1)), n=n_theta, axis=1).sum(axis=0)
+        den = math.sqrt(float((pa * pa).sum() * (q * q).sum()))
         i = int(np.argmax(cc))
         val = float(cc[i]) / den if den > 0 else 0.0
         if val > best:
