@@ -1,0 +1,408 @@
+"""Error against run time: how right the answer is for how long the device listens.
+
+Measured on simulated scenes with known truth, through the real pipeline
+(``analysis.build_reference`` / ``analysis.analyze``); nothing here re-implements a stage.
+Pure computation (no files, no printing): the ``report`` command runs the jobs in worker
+processes and writes the results.
+
+Trials
+------
+A trial is a fresh recording of T seconds analysed on its own, with ``daemon.window_s = T``
+(the answer describes everything heard) and ``analysis.min_pulses = 16`` (the smallest the
+config allows, so short windows are tried at all; shorter recordings are *refused* and
+counted with the unknowns). Per seed, the longest window is simulated once, without noise
+and with the simulator's own unit noise; every SNR is ``clean + sigma(SNR) * noise`` (the
+simulator's SNR definition, exactly what ``simulate(snr_db=...)`` renders). Shorter windows
+are the prefix and the following non-overlapping stretches of that recording (up to
+``max_segments`` trials per seed). One reference per (scene, blade count), recorded at
+``ref_rate_hz`` ccw for ``ref_seconds``, serves every seed.
+
+Scoring
+-------
+Correct: a moving truth answered with its absolute rotation (cw/ccw), a stopped truth
+answered ``stopped``. ``unknown`` (or refused) is counted separately from wrong. The rate
+error is ``|relative_rate - true ratio| / |true ratio|`` over trials that gave a rate.
+Reversal time: from the true reversal to the first row after which the running answer
+stays on the new direction to the end of the recording (default ``daemon.window_s``).
+Compute time is the process CPU time of ``analyze`` per second of audio.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import config as _config
+from .analysis import Reference, analyze, build_reference
+from .errors import BladesonarError
+from .sim.render import Simulator
+
+ALIAS_NOTE = "|rate| >= PRF / (2 K): the blade phase steps half a period or more per pulse"
+
+
+@dataclass(frozen=True)
+class Family:
+    """One sweep: every combination of its lists, ``seeds`` random seeds each."""
+
+    name: str
+    scenes: tuple[str, ...]
+    blades: tuple[int, ...]
+    ratios: tuple[float, ...]          # |rate| / reference rate; the sign alternates by seed
+    snrs_db: tuple[float, ...]
+    windows_s: tuple[float, ...]
+    seeds: int
+    reversal: bool = False             # a ccw -> cw run instead of windows
+    jitter: float = 0.05               # each seed's rate is ratio * (1 + U(-j, j))
+
+
+@dataclass(frozen=True)
+class Grid:
+    families: tuple[Family, ...]
+    ref_rate_hz: float = 0.47
+    ref_seconds: float = 20.0
+    ref_snr_db: float = 30.0
+    max_segments: int = 4
+    reversal_at_s: float = 10.0
+    reversal_seconds: float = 20.0
+    seed0: int = 1
+
+    @property
+    def scenes(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(s for f in self.families for s in f.scenes))
+
+    def references(self) -> list[tuple[str, int]]:
+        return list(dict.fromkeys((s, k) for f in self.families for s in f.scenes
+                                  for k in f.blades))
+
+
+WINDOWS = (0.25, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 20.0, 30.0)
+SNRS = (-5.0, 0.0, 5.0, 10.0, 20.0, 30.0)
+ROOMS = ("paper-room", "corner-sensor", "small-office", "narrow-hall")
+
+
+def commensurate_ratio(prf_hz: float, blades: int, ref_rate_hz: float, period: int = 17
+                       ) -> float:
+    """Rate ratio whose blade period is exactly ``period`` pulses (a blind spot)."""
+    return prf_hz / (blades * period) / ref_rate_hz
+
+
+def default_grid(quick: bool = False, prf_hz: float = 44100 / 1297) -> Grid:
+    """The full sweep (minutes on 2 cores) or the quick one (CI, well under a minute)."""
+    comm = round(commensurate_ratio(prf_hz, 4, 0.47), 6)
+    if quick:
+        return Grid(families=(
+            Family("window_snr", ("paper-room",), (4,), (1.0,), (0.0, 10.0, 20.0),
+                   (0.5, 1.0, 2.0, 5.0, 10.0), 6),
+            Family("rate_ratio", ("paper-room",), (4,), (0.0, 2.0, 5.0, 9.5), (20.0,),
+                   (2.0, 5.0), 2),
+            Family("reversal", ("paper-room",), (4,), (1.0,), (20.0,), (), 2, reversal=True),
+        ), ref_seconds=12.0, reversal_at_s=6.0, reversal_seconds=12.0)
+    return Grid(families=(
+        Family("window_snr", ("paper-room",), (4,), (1.0,), SNRS, WINDOWS, 24),
+        Family("rate_ratio", ("paper-room",), (4,), (0.0, 0.1, 0.25, 0.5, 2.0, 3.5, 5.0, 9.5),
+               (10.0, 20.0), WINDOWS, 8),
+        Family("commensurate", ("paper-room",), (4,), (comm,), (10.0, 20.0), WINDOWS, 12,
+               jitter=0.0),
+        Family("blades", ("paper-room",), (3, 5), (1.0,), (0.0, 10.0, 20.0), WINDOWS, 10),
+        Family("rooms", ROOMS[1:], (4,), (1.0,), (0.0, 10.0, 20.0), WINDOWS, 10),
+        Family("reversal", ("paper-room",), (4,), (1.0,), SNRS, (), 10, reversal=True),
+    ))
+
+
+@dataclass(frozen=True)
+class Job:
+    family: str
+    scene: str
+    blades: int
+    ratio: float          # signed: + same direction as the reference (ccw), - reversed
+    snrs_db: tuple[float, ...]
+    windows_s: tuple[float, ...]
+    seed: int
+    reversal: bool = False
+    jitter: float = 0.0
+
+    @property
+    def true_ratio(self) -> float:
+        """The seed's actual ratio: a real fan is never locked to the reference rate (and
+        rates whose blade period is a whole number of pulses are a blind spot, swept
+        apart in the 'commensurate' family)."""
+        if not self.jitter:
+            return self.ratio
+        u = np.random.default_rng([self.seed, 77, int(abs(self.ratio) * 1e6)]).uniform(-1, 1)
+        return self.ratio * (1.0 + self.jitter * u)
+
+
+def jobs(grid: Grid) -> list[Job]:
+    """One job per (family, scene, blades, ratio, seed): all its SNRs and windows."""
+    out = []
+    for f in grid.families:
+        for s in f.scenes:
+            for k in f.blades:
+                for r in f.ratios:
+                    for i in range(f.seeds):
+                        seed = grid.seed0 + i
+                        sign = 1.0 if (i % 2 == 0 or f.reversal) else -1.0
+                        out.append(Job(f.name, s, k, sign * r, f.snrs_db, f.windows_s, seed,
+                                       f.reversal, f.jitter))
+    return out
+
+
+def sweep_config(cfg: _config.Config, blades: int, window_s: float | None = None
+                 ) -> _config.Config:
+    """The config of a trial: blade count, the answer over the whole window, short
+    recordings allowed down to 16 pulses."""
+    d: dict[str, Any] = {"scene": {"blades": blades}, "analysis": {"min_pulses": 16}}
+    if window_s is not None:
+        d["daemon"] = {"window_s": max(float(window_s), 0.25)}
+    return _config.replace(cfg, **d)
+
+
+def _scene(scene, blades: int):
+    return dataclasses.replace(scene, blades=blades)
+
+
+def make_reference(scene, cfg: _config.Config, blades: int, grid: Grid) -> Reference:
+    """The reference of a (scene, blade count): a steady ccw run at ``ref_rate_hz``."""
+    c = sweep_config(cfg, blades)
+    sim = Simulator(_scene(scene, blades), c, f"ccw:{grid.ref_rate_hz}:{grid.ref_seconds}",
+                    snr_db=grid.ref_snr_db, seed=10_000 + grid.seed0, include_paths=False)
+    x = np.concatenate([chunk for chunk, _ in sim.chunks(grid.ref_seconds)])
+    return build_reference(x, c, "ccw")
+
+
+def _schedule(rate_hz: float, seconds: float) -> str:
+    if rate_hz == 0:
+        return f"stop:0:{seconds}"
+    return f"{'ccw' if rate_hz > 0 else 'cw'}:{abs(rate_hz)}:{seconds}"
+
+
+def _render(scene, cfg, schedule: str, seconds: float, seed: int) -> tuple[np.ndarray,
+                                                                          np.ndarray, float]:
+    """(clean, unit noise, fan power) of one run: the simulator's noise for seed, scaled to
+    sigma = 1, and the power its SNR refers to (so x = clean + sqrt(P / 10^(snr/10)) n)."""
+    def run(snr):
+        sim = Simulator(scene, cfg, schedule, snr_db=snr, seed=seed, include_paths=False)
+        x = np.concatenate([c for c, _ in sim.chunks(seconds)])
+        return x, sim
+    clean, _ = run(None)
+    noisy, sim = run(0.0)
+    sigma = sim.sigma
+    if not sigma > 0:
+        raise BladesonarError("the scene gives no fan echo power inside the gate")
+    return clean, (noisy - clean) / sigma, sigma * sigma
+
+
+def _truth_direction(ratio: float, rate_hz: float, alias_hz: float) -> str:
+    if ratio == 0:
+        return "stopped"
+    return "ccw" if ratio > 0 else "cw"
+
+
+def _one(x: np.ndarray, cfg, ref: Reference) -> tuple[dict[str, Any] | None, float, str]:
+    t0 = time.process_time()
+    try:
+        s, _ = analyze(x, cfg, ref)
+        err = ""
+    except BladesonarError as exc:
+        s, err = None, str(exc)
+    return s, time.process_time() - t0, err
+
+
+def run_job(job: Job, scene, cfg: _config.Config, ref: Reference, grid: Grid
+            ) -> list[dict[str, Any]]:
+    """All trials of one job, as flat records (see the module notes for the scoring)."""
+    sc = _scene(scene, job.blades)
+    base = sweep_config(cfg, job.blades)
+    fs = base.audio.sample_rate
+    ratio = job.true_ratio
+    rate = ratio * grid.ref_rate_hz
+    alias = base.prf_hz / (2 * job.blades)
+    if job.reversal:
+        return _run_reversal(job, sc, base, ref, grid)
+    longest = max(job.windows_s)
+    clean, unit, p_fan = _render(sc, base, _schedule(rate, longest), longest, job.seed)
+    truth = _truth_direction(job.ratio, rate, alias)
+    out = []
+    for snr in job.snrs_db:
+        x = clean + math.sqrt(p_fan / 10 ** (snr / 10)) * unit
+        for w in job.windows_s:
+            cfg_w = sweep_config(cfg, job.blades, w)
+            n = int(round(w * fs))
+            segs = max(1, min(grid.max_segments, len(x) // n))
+            for s in range(segs):
+                summary, cpu, err = _one(x[s * n:(s + 1) * n], cfg_w, ref)
+                rec = dict(family=job.family, scene=job.scene, blades=job.blades,
+                           ratio=job.ratio, true_ratio=ratio, rate_hz=rate, snr_db=snr, window_s=w,
+                           seed=job.seed, segment=s, truth=truth,
+                           aliased=abs(rate) >= alias, cpu_s=cpu, audio_s=n / fs)
+                if summary is None:
+                    rec.update(answer="refused", relative_rate=None, confidence=0.0,
+                               error=err)
+                else:
+                    ans = summary["direction"]
+                    if ans in ("same", "reversed"):
+                        ans = summary["rotation"]
+                    rec.update(answer=ans, relative_rate=summary["relative_rate"],
+                               confidence=summary["confidence"])
+                out.append(rec)
+    return out
+
+
+def _run_reversal(job: Job, sc, base, ref: Reference, grid: Grid) -> list[dict[str, Any]]:
+    rate = abs(job.true_ratio) * grid.ref_rate_hz
+    t_rev, total = grid.reversal_at_s, grid.reversal_seconds
+    sched = f"ccw:{rate}:{t_rev},cw:{rate}:{total - t_rev}"
+    clean, unit, p_fan = _render(sc, base, sched, total, job.seed)
+    cfg = _config.replace(base, analysis={"min_pulses": 16})
+    out = []
+    for snr in job.snrs_db:
+        x = clean + math.sqrt(p_fan / 10 ** (snr / 10)) * unit
+        t0 = time.process_time()
+        try:
+            _, rows = analyze(x, cfg, ref, track=True)
+        except BladesonarError:
+            rows = []
+        cpu = time.process_time() - t0
+        t = np.array([r["t_s"] for r in rows])
+        d = np.array([r["rotation"] or r["direction"] for r in rows])
+        after = t >= t_rev
+        det = None
+        if after.any() and d[-1] == "cw":
+            bad = np.nonzero(after & (d != "cw"))[0]
+            first = (bad[-1] + 1) if len(bad) else int(np.argmax(after))
+            det = float(t[first] - t_rev)
+        before = (t < t_rev) & (t >= t_rev - 2.0)
+        out.append(dict(family=job.family, scene=job.scene, blades=job.blades,
+                        ratio=-abs(job.ratio), rate_hz=rate, snr_db=snr, seed=job.seed,
+                        detect_s=det, settled_before=bool(before.any() and
+                                                          np.all(d[before] == "ccw")),
+                        cpu_s=cpu, audio_s=len(x) / base.audio.sample_rate))
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# Aggregation
+
+
+def _wilson_lower(k: int, n: int, z: float = 1.96) -> float:
+    if n == 0:
+        return 0.0
+    p = k / n
+    den = 1 + z * z / n
+    c = p + z * z / (2 * n)
+    return float((c - z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))) / den)
+
+
+def _q(v: list[float], q: float) -> float | None:
+    return None if not v else round(float(np.percentile(v, q)), 6)
+
+
+def aggregate(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per (family, scene, blades, |ratio|, snr, window): every number."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in records:
+        if "window_s" not in r:
+            continue
+        key = (r["family"], r["scene"], r["blades"], abs(r["ratio"]), r["snr_db"],
+               r["window_s"])
+        groups.setdefault(key, []).append(r)
+    rows = []
+    for key in sorted(groups):
+        g = groups[key]
+        n = len(g)
+        correct = sum(1 for r in g if r["answer"] == r["truth"])
+        unknown = sum(1 for r in g if r["answer"] in ("unknown", "refused"))
+        refused = sum(1 for r in g if r["answer"] == "refused")
+        errs = [abs(r["relative_rate"] - r["true_ratio"]) / abs(r["true_ratio"]) for r in g
+                if r["relative_rate"] is not None and r["true_ratio"] != 0
+                and r["answer"] not in ("unknown", "refused")]
+        cpu = sum(r["cpu_s"] for r in g)
+        audio = sum(r["audio_s"] for r in g)
+        rows.append(dict(
+            family=key[0], scene=key[1], blades=key[2], ratio=key[3], snr_db=key[4],
+            window_s=key[5], trials=n, correct=round(correct / n, 4),
+            correct_lower95=round(_wilson_lower(correct, n), 4),
+            unknown=round(unknown / n, 4), refused=round(refused / n, 4),
+            wrong=round((n - correct - unknown) / n, 4),
+            rate_err_median=_q(errs, 50), rate_err_p95=_q(errs, 95), rate_answers=len(errs),
+            cpu_per_audio_s=round(cpu / audio, 6) if audio else None,
+            aliased=bool(g[0]["aliased"])))
+    return rows
+
+
+def aggregate_reversals(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    groups: dict[tuple, list[dict]] = {}
+    for r in records:
+        if "detect_s" in r:
+            groups.setdefault((r["scene"], r["blades"], abs(r["ratio"]), r["snr_db"]),
+                              []).append(r)
+    rows = []
+    for key in sorted(groups):
+        g = groups[key]
+        det = [r["detect_s"] for r in g if r["detect_s"] is not None]
+        rows.append(dict(scene=key[0], blades=key[1], ratio=key[2], snr_db=key[3],
+                         trials=len(g), detected=round(len(det) / len(g), 4),
+                         detect_s_median=_q(det, 50), detect_s_p95=_q(det, 95),
+                         settled_before=round(sum(r["settled_before"] for r in g) / len(g),
+                                              4)))
+    return rows
+
+
+def envelope(rows: list[dict[str, Any]], target: float = 0.99) -> dict[str, Any]:
+    """The operating envelope from the window x SNR family: per SNR the shortest window
+    from which on (every longer window too) direction is at least ``target`` correct, and
+    the lowest SNR that reaches it at some window."""
+    ws = [r for r in rows if r["family"] == "window_snr"]
+    snrs = sorted({r["snr_db"] for r in ws})
+    per_snr = {}
+    for s in snrs:
+        g = sorted((r for r in ws if r["snr_db"] == s), key=lambda r: r["window_s"])
+        shortest = None
+        for i in range(len(g)):
+            if all(r["correct"] >= target for r in g[i:]):
+                shortest = g[i]["window_s"]
+                break
+        per_snr[str(s)] = shortest
+    ok = [s for s in snrs if per_snr[str(s)] is not None]
+    lowest = min(ok) if ok else None
+    return dict(target=target, shortest_window_s_by_snr=per_snr, lowest_snr_db=lowest,
+                shortest_window_s=min((per_snr[str(s)] for s in ok), default=None),
+                shortest_window_at_lowest_snr_s=per_snr[str(lowest)] if ok else None)
+
+
+def limit_notes(rows: list[dict[str, Any]], prf_hz: float, slew_limit: float,
+                ref_rate_hz: float) -> list[str]:
+    """Where it breaks, in words, from the rate-ratio family (best SNR, longest window)."""
+    g = [r for r in rows if r["family"] == "rate_ratio"]
+    if not g:
+        return []
+    s = max(r["snr_db"] for r in g)
+    w = max(r["window_s"] for r in g)
+    pick = {r["ratio"]: r for r in g if r["snr_db"] == s and r["window_s"] == w}
+    notes = []
+    for ratio, r in sorted(pick.items()):
+        k = r["blades"]
+        rate = ratio * ref_rate_hz
+        head = (f"ratio {ratio:g} ({rate:.3g} Hz, {k} blades) at {s:g} dB, {w:g} s: "
+                f"{_pct(r['correct'])} % correct, {_pct(r['unknown'])} % unknown, "
+                f"{_pct(r['wrong'])} % wrong")
+        if ratio == 0:
+            notes.append(f"Stationary fan: {head} (correct = answered `stopped`).")
+        elif r["aliased"]:
+            notes.append(f"Aliasing limit PRF/(2K) = {prf_hz / (2 * k):.3g} Hz: {head}; "
+                         f"beyond it ({ALIAS_NOTE}) the direction cannot be known.")
+        elif ratio > slew_limit:
+            notes.append(f"Slew limit (tracking.slew_limit = {slew_limit:g} x the reference "
+                         f"rate): {head}.")
+        elif ratio < 1.0 / slew_limit + 1e-9:
+            notes.append(f"Slower than reference / slew_limit: {head}.")
+    return notes
+
+
+def _pct(v: float) -> str:
+    return f"{100 * v:.0f}"
