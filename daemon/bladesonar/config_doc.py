@@ -59,5 +59,17 @@ def example_yaml() -> str:
     return "\n".join(lines) + "\n"
 
 
+def markdown_table() -> str:
+    """The configuration reference as a Markdown table (for the README)."""
+    rows = ["| key | default | allowed | meaning |", "|---|---|---|---|"]
+    for key, f in config.iter_fields():
+        default = f.default if f.default is not dataclasses.MISSING else None
+        dom = _domain(f.metadata).strip(" []")
+        rows.append(f"| `{key}` | `{_yaml_value(default)}` | {dom} | {f.metadata['doc']} |")
+    return "\n".join(rows) + "\n"
+
+
 if __name__ == "__main__":  # pragma: no cover
-    print(example_yaml(), end="")
+    import sys
+
+    print(markdown_table() if "--markdown" in sys.argv else example_yaml(), end="")

@@ -1,0 +1,119 @@
+"""The daemon's per-pulse pipeline: capture periods in, the current estimate out (pure).
+
+The same stages as ``analysis.analyze`` (aligner -> static removal -> match -> track ->
+decide), fed one capture period at a time. What the offline path gets from a whole file
+it gets here from a warm-up: the running static estimate is primed from the first
+``analysis.static_window_s`` of valid pulses before any answer is given.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .analysis import PulseAnalyzer, Reference, new_analyzer
+from .config import Config
+from .dsp.pulses import DROPOUT, OK, AlignedPulses, PulseAligner
+
+#: Samples beyond the gate that the fractional-shift interpolator reads.
+_INTERP_MARGIN = 32
+
+
+class LiveAnalyzer:
+    """Streaming analysis for the service; one instance per (config, reference)."""
+
+    def __init__(self, cfg: Config, ref: Reference, *, reference_id: str | None = None) -> None:
+        self.cfg, self.ref = cfg, ref
+        self.reference_id = reference_id
+        self.pri = cfg.waveform.pri_samples
+        self.aligner = PulseAligner(self.pri, ref.gate)
+        self.warmup = int(max(round(cfg.analysis.static_window_s * cfg.prf_hz), 1))
+        self.analyzer: PulseAnalyzer | None = None
+        self._held: list[AlignedPulses] = []
+        self._held_valid = 0
+        self._next_sample: int | None = None
+        self._pushed = 0                       # samples given to the aligner so far
+        self._gaps: list[tuple[int, int]] = []  # (aligner stream position, pulses lost)
+        self.lost_pulses = 0
+        self.discontinuities = 0
+
+    @property
+    def aligned(self) -> bool:
+        """True once the direct-coupling edge is found and the warm-up is done."""
+        return self.analyzer is not None
+
+    def push(self, samples: np.ndarray, start_sample: int | None = None) -> dict[str, Any] | None:
+        """Add one capture block; return the current estimate, or None while warming up.
+
+        ``start_sample`` is the block's position in the capture stream (counted by the
+        audio thread). A jump means samples were lost (an xrun, a full ring): the pulses in
+        the gap are counted as lost and the tracker's clock is advanced by them, so that
+        phase rates stay true across the gap.
+        """
+        if start_sample is not None:
+            if self._next_sample is not None and start_sample != self._next_sample:
+                gap = start_sample - self._next_sample
+                self.discontinuities += 1
+                lost = max(gap, 0) // self.pri
+                self.lost_pulses += lost
+                self._gaps.append((self._pushed, lost))
+            self._next_sample = start_sample + len(samples)
+        got = self.aligner.push(samples)
+        self._pushed += len(samples)
+        if len(got) and self._gaps:
+            self._mend_gaps(got)
+        if self.analyzer is None:
+            if len(got):
+                self._held.append(got)
+                self._held_valid += int(got.valid.sum())
+            if self._held_valid < self.warmup:
+                return None
+            first = np.concatenate([h.pulses[h.valid] for h in self._held])[:self.warmup]
+            self.analyzer = new_analyzer(self.cfg, self.ref, first)
+            for h in self._held:
+                self.analyzer.process(h)
+            self._held = []
+        elif len(got):
+            self.analyzer.process(got)
+        return self.estimate()
+
+    def _mend_gaps(self, got: AlignedPulses) -> None:
+        """Pulses after a gap get the lost pulses added to their number (the tracker's
+        clock); a pulse whose window straddles the gap holds samples of two different
+        times and is marked as a drop-out."""
+        reach = self.ref.gate.stop + _INTERP_MARGIN
+        offset = np.zeros(len(got), dtype=np.int64)
+        for pos, lost in self._gaps:
+            offset += np.where(got.edges >= pos, lost, 0)
+            straddle = (got.edges < pos) & (got.edges + reach > pos) & (got.status == OK)
+            got.status[straddle] = DROPOUT
+        got.index = got.index + offset
+        # a gap is settled once pulses have been emitted beyond it; keep its offset by
+        # folding it into a single carried entry
+        settled = [(p, n) for p, n in self._gaps if got.edges[-1] > p + reach]
+        if settled:
+            carried = sum(n for _, n in settled)
+            self._gaps = [(0, carried)] + [g for g in self._gaps if g not in settled]
+
+    def estimate(self) -> dict[str, Any] | None:
+        """The decision over the last ``daemon.window_s``, as the state message's fields."""
+        if self.analyzer is None:
+            return None
+        d = self.analyzer.decision().as_dict()
+        d["rotating"] = {"same": True, "reversed": True, "stopped": False}.get(d["direction"])
+        d["window_s"] = round(min(self.cfg.daemon.window_s,
+                                  self.analyzer.seen / self.cfg.prf_hz), 3)
+        d["reference"] = self.reference_id
+        return d
+
+    def stats(self) -> dict[str, Any]:
+        an = self.analyzer
+        drift = (self.aligner.period / self.pri - 1.0) * 1e6 if self.aligner.acquired else math.nan
+        return {
+            "pulses_aligned": an.seen if an else 0,
+            "dropped_pulses": (an.dropped if an else 0) + self.lost_pulses,
+            "discontinuities": self.discontinuities,
+            "clock_ppm": round(drift, 1) if math.isfinite(drift) else None,
+        }
