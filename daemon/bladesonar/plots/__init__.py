@@ -54,11 +54,31 @@ def save(fig: Any, path: str | Path) -> Path:
     plt = pyplot()
     try:
         p.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(p, format=fmt, dpi=DPI, metadata={"Software": "bladesonar"} if fmt ==
-                    "png" else None)
+        if fmt == "png":
+            _save_png(fig, p)
+        else:
+            fig.savefig(p, format=fmt, dpi=DPI)
     except OSError as exc:
         raise InputError(f"--out {p}: cannot be written ({exc.strerror}); choose a "
                          "writable path") from exc
     finally:
         plt.close(fig)
     return p
+
+
+def _save_png(fig: Any, path: Path) -> None:
+    """PNG with a 256-colour palette (no dithering): pictures of noisy maps stay small
+    enough to commit, and colour scales have far fewer than 256 steps that matter."""
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - matplotlib depends on Pillow
+        path.write_bytes(buf.getvalue())
+        return
+    buf.seek(0)
+    with Image.open(buf) as im:
+        q = im.convert("RGB").quantize(colors=256, dither=Image.Dither.NONE)
+        q.save(path, format="PNG", optimize=True)

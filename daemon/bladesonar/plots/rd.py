@@ -10,12 +10,12 @@ from ..imaging import RANGE_LABEL, RDMap
 
 def draw(m: RDMap, out: str | Path, *, title: str = "", floor_db: float | None = None,
          max_range_m: float | None = None) -> Path:
-    """``floor_db`` None: 3 dB under the map's median (its noise floor)."""
+    """``floor_db`` None: the map's median (its noise floor)."""
     import numpy as np
 
     plt = pyplot()
     if floor_db is None:
-        floor_db = min(float(np.median(m.power_db)) - 3.0, -10.0)
+        floor_db = min(float(np.median(m.power_db)), -10.0)
     fig, ax = plt.subplots(figsize=FIGSIZE, layout="constrained")
     r = m.range_m
     keep = r <= (max_range_m if max_range_m else r[-1])

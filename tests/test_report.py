@@ -1,0 +1,131 @@
+"""`bladesonar report`: a tiny sweep end to end, and the scoring rules on their own."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bladesonar import config
+from bladesonar.cli import main
+from bladesonar.runtime_report import (Family, Grid, Job, _render, aggregate, envelope, jobs,
+                                       sweep_config)
+from bladesonar.sim import load_scene
+from bladesonar.sim.render import simulate
+
+GRID = {
+    "families": [
+        {"name": "window_snr", "scenes": ["paper-room"], "blades": [4], "ratios": [1.0],
+         "snrs_db": [-40.0, 20.0], "windows_s": [0.25, 5.0], "seeds": 2},
+        {"name": "rate_ratio", "scenes": ["paper-room"], "blades": [4], "ratios": [9.5],
+         "snrs_db": [20.0], "windows_s": [5.0], "seeds": 2},
+        {"name": "reversal", "scenes": ["paper-room"], "blades": [4], "ratios": [1.0],
+         "snrs_db": [20.0], "windows_s": [], "seeds": 1, "reversal": True},
+    ],
+    "ref_seconds": 10.0, "reversal_at_s": 5.0, "reversal_seconds": 10.0,
+}
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    d = tmp_path_factory.mktemp("report")
+    g = d / "grid.json"
+    g.write_text(json.dumps(GRID))
+    assert main(["report", "--grid", str(g), "--jobs", "2", "--out", str(d / "out")]) == 0
+    return d / "out"
+
+
+def _row(rep, **kw):
+    got = [r for r in rep["rows"] if all(r[k] == v for k, v in kw.items())]
+    assert len(got) == 1, kw
+    return got[0]
+
+
+def test_tiny_sweep_scores_against_the_truth(report):
+    rep = json.loads((report / "report.json").read_text())
+    assert rep["format"] == "bladesonar-report/1"
+    for key in ("meta", "grid", "envelope", "limits", "references", "rows", "reversals"):
+        assert key in rep
+    fields = {"family", "scene", "blades", "ratio", "snr_db", "window_s", "trials", "correct",
+              "correct_lower95", "unknown", "refused", "wrong", "rate_err_median",
+              "rate_err_p95", "cpu_per_audio_s", "aliased"}
+    assert all(fields <= set(r) for r in rep["rows"])
+    # long window, high SNR: every trial right (one ccw, one cw seed), rate within 1 %
+    good = _row(rep, family="window_snr", snr_db=20.0, window_s=5.0)
+    assert good["trials"] == 2 and good["correct"] == 1.0 and good["wrong"] == 0
+    assert good["rate_err_p95"] < 0.01
+    assert 0 < good["cpu_per_audio_s"] < 1.0
+    # pure noise: never claimed as correct
+    noise = _row(rep, family="window_snr", snr_db=-40.0, window_s=5.0)
+    assert noise["correct"] == 0.0 and noise["unknown"] == 1.0
+    # 0.25 s holds 8 pulses: below the 16 the pipeline accepts, so refused (and unknown)
+    short = _row(rep, family="window_snr", snr_db=20.0, window_s=0.25)
+    assert short["trials"] == 8 and short["refused"] == 1.0 and short["correct"] == 0.0
+    # beyond the aliasing limit the truth is flagged and no answer is right
+    ali = _row(rep, family="rate_ratio", window_s=5.0)
+    assert ali["aliased"] and ali["correct"] == 0.0
+    assert any("Aliasing limit" in n for n in rep["limits"])
+    rv = rep["reversals"][0]
+    assert rv["detected"] == 1.0 and 0 < rv["detect_s_median"] < 5.0
+    assert rep["envelope"]["shortest_window_s_by_snr"] == {"-40.0": None, "20.0": 5.0}
+    lines = (report / "trials.jsonl").read_text().splitlines()
+    assert len(lines) == rep["meta"]["trials"] == 8 * 2 + 2 * 2 + 2 + 1
+
+
+def test_report_files(report):
+    md = (report / "report.md").read_text()
+    assert "## Operating envelope" in md and "| 20 dB | 0 (100?) | 100 |" in md
+    for name in ("error_vs_time.png", "compute_vs_window.png"):
+        data = (report / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) < 200_000
+        assert f"]({name})" in md
+
+
+def test_noise_is_the_simulators_own(repo_root):
+    """Each SNR is clean + scaled unit noise: identical to rendering at that SNR."""
+    cfg = sweep_config(config.Config(), 4)
+    scene = load_scene(repo_root / "config" / "scenes" / "paper-room.yaml")
+    clean, unit, p = _render(scene, cfg, "cw:0.4:2", 2.0, 5)
+    for snr in (-5.0, 17.0):
+        x, _ = simulate(scene, cfg, 2.0, schedule="cw:0.4:2", snr_db=snr, seed=5,
+                        include_paths=False)
+        assert np.allclose(clean + math.sqrt(p / 10 ** (snr / 10)) * unit, x, atol=1e-12)
+
+
+def _rec(answer, truth, rel=None, ratio=1.0, window=5.0, snr=20.0):
+    return dict(family="window_snr", scene="s", blades=4, ratio=ratio, true_ratio=ratio,
+                snr_db=snr, window_s=window, seed=1, answer=answer, truth=truth,
+                relative_rate=rel, cpu_s=0.01, audio_s=window, aliased=False)
+
+
+def test_unknown_is_not_wrong_and_rate_error_uses_the_truth():
+    recs = [_rec("ccw", "ccw", 1.02), _rec("unknown", "ccw", 0.5), _rec("refused", "ccw"),
+            _rec("cw", "ccw", -1.0)]
+    r = aggregate(recs)[0]
+    assert (r["correct"], r["unknown"], r["refused"], r["wrong"]) == (0.25, 0.5, 0.25, 0.25)
+    # answered trials only: |1.02 - 1| and |-1 - 1| / 1
+    assert r["rate_answers"] == 2
+    assert r["rate_err_median"] == pytest.approx(1.01)
+    stopped = aggregate([_rec("stopped", "stopped", 0.0, ratio=0.0)])[0]
+    assert stopped["correct"] == 1.0 and stopped["rate_err_median"] is None
+
+
+def test_envelope_needs_every_longer_window():
+    rows = []
+    for w, c in ((1.0, 1.0), (2.0, 0.9), (5.0, 1.0), (10.0, 1.0)):
+        rows.append(dict(family="window_snr", snr_db=10.0, window_s=w, correct=c))
+        rows.append(dict(family="window_snr", snr_db=0.0, window_s=w, correct=0.5))
+    env = envelope(rows)
+    assert env["shortest_window_s_by_snr"] == {"0.0": None, "10.0": 5.0}
+    assert env["lowest_snr_db"] == 10.0
+
+
+def test_jobs_alternate_direction_and_jitter_the_rate():
+    g = Grid(families=(Family("window_snr", ("a",), (4,), (1.0,), (10.0,), (1.0,), 4),))
+    js = jobs(g)
+    assert [np.sign(j.ratio) for j in js] == [1, -1, 1, -1]
+    tr = [j.true_ratio for j in js]
+    assert all(0.95 <= abs(t) <= 1.05 for t in tr) and len(set(tr)) == 4
+    assert Job("x", "a", 4, -2.0, (), (), 3).true_ratio == -2.0
