@@ -78,7 +78,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--max-range", type=_positive(float, "give a range in m > 0"),
                    metavar="M", help="top of the range axis, m (default: one PRI)")
     q.add_argument("--floor-db", type=float,
-                   help="colour floor, dB (default: the map's median, i.e. its noise floor)")
+                   help="colour floor, dB (default: 3 dB over the map's median noise floor)")
     common(q)
 
     q = kinds.add_parser("isar", help="ISAR image in the fan's rotating frame")

@@ -67,8 +67,8 @@ def save(fig: Any, path: str | Path) -> Path:
 
 
 def _save_png(fig: Any, path: Path) -> None:
-    """PNG with a 256-colour palette (no dithering): pictures of noisy maps stay small
-    enough to commit, and colour scales have far fewer than 256 steps that matter."""
+    """PNG with a 256-colour octree palette (no dithering; keeps rare annotation colours,
+    unlike median cut): pictures of noisy maps stay small enough to commit."""
     import io
 
     buf = io.BytesIO()
@@ -80,5 +80,6 @@ def _save_png(fig: Any, path: Path) -> None:
         return
     buf.seek(0)
     with Image.open(buf) as im:
-        q = im.convert("RGB").quantize(colors=256, dither=Image.Dither.NONE)
+        q = im.convert("RGB").quantize(colors=256, method=Image.Quantize.FASTOCTREE,
+                                         dither=Image.Dither.NONE)
         q.save(path, format="PNG", optimize=True)

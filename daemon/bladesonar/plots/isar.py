@@ -14,15 +14,15 @@ from ..imaging import IsarImage
 def draw(img: IsarImage, out: str | Path, *, title: str = "", floor_db: float = -20.0,
          tip_m: float | None = None, hub_m: float | None = None) -> Path:
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(7.0, 5.6), layout="constrained")
+    fig, ax = plt.subplots(figsize=(6.6, 5.2), layout="constrained")
     e = img.extent_m
     db = 20.0 * np.log10(img.image / max(float(img.image.max()), 1e-300) + 1e-12)
     im = ax.imshow(db, origin="lower", extent=[-e, e, -e, e], cmap="magma", vmin=floor_db,
                    vmax=0.0, interpolation="bilinear")
     th = np.linspace(0, 2 * math.pi, 361)
-    for r, lab in ((tip_m, "blade tips"), (hub_m, "hub")):
+    for r, lab, col, ls in ((tip_m, "blade tips", "c", "--"), (hub_m, "hub", "w", ":")):
         if r:
-            ax.plot(r * np.cos(th), r * np.sin(th), color="c", lw=0.8, ls="--", label=lab)
+            ax.plot(r * np.cos(th), r * np.sin(th), color=col, lw=0.8, ls=ls, label=lab)
     if tip_m or hub_m:
         ax.legend(loc="upper right", fontsize=8, framealpha=0.6)
     ax.set_xlabel("x in the rotating fan frame (m from the fan centre)")

@@ -10,12 +10,13 @@ from ..imaging import RANGE_LABEL, RDMap
 
 def draw(m: RDMap, out: str | Path, *, title: str = "", floor_db: float | None = None,
          max_range_m: float | None = None) -> Path:
-    """``floor_db`` None: the map's median (its noise floor)."""
+    """``floor_db`` None: 3 dB over the map's median (its noise floor), so the noise
+    texture does not bury the echoes (and the PNG stays small)."""
     import numpy as np
 
     plt = pyplot()
     if floor_db is None:
-        floor_db = min(float(np.median(m.power_db)), -10.0)
+        floor_db = min(float(np.median(m.power_db)) + 3.0, -10.0)
     fig, ax = plt.subplots(figsize=FIGSIZE, layout="constrained")
     r = m.range_m
     keep = r <= (max_range_m if max_range_m else r[-1])
@@ -40,7 +41,7 @@ def draw(m: RDMap, out: str | Path, *, title: str = "", floor_db: float | None =
     if m.target_m is not None:
         ax.axhline(m.target_m, color="orange", lw=1.0, ls=":")
         ax.text(m.doppler_hz[-1] - df, m.target_m, f"target {m.target_m:.2f} m ", color="orange",
-                va="bottom", ha="right", fontsize=9)
+                va="top", ha="right", fontsize=9)
     ax.set_xlabel("doppler (Hz)")
     ax.set_ylabel(RANGE_LABEL, fontsize=9)
     ax.set_title(title or f"range-doppler map, {m.pulses} pulses (static part removed)")
