@@ -90,3 +90,10 @@ def test_example_config_documents_every_key_with_its_default(repo_root):
     text = path.read_text()
     for key, f in config.iter_fields():
         assert f.metadata["doc"] in text, f"doc of {key} missing"
+
+
+def test_readme_configuration_table_is_current(repo_root):
+    """The README's table must be the schema's; regenerate with tools/gen-docs."""
+    from bladesonar.config_doc import markdown_table
+
+    assert markdown_table() in (repo_root / "README.md").read_text()

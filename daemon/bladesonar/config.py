@@ -209,6 +209,11 @@ class Config:
         return q if q.is_absolute() else Path(self.base_dir) / q
 
     @property
+    def reference_path(self) -> Path:
+        """Where the daemon keeps its reference: daemon.reference inside daemon.state_dir."""
+        return self.path(self.daemon.state_dir) / Path(self.daemon.reference).expanduser()
+
+    @property
     def prf_hz(self) -> float:
         """Pulse repetition frequency."""
         return self.audio.sample_rate / self.waveform.pri_samples

@@ -15,8 +15,14 @@ analysis.min_periods blade periods (a few seconds). Ranges are one-way, c * dela
 the direct-coupling edge. The summary's rate_hz is the fan's rotation rate (blade-pass
 frequency / blades).
 
-example:
+examples:
   bladesonar reference --config cfg.yaml --direction ccw --out ref.npz reference.wav
+  bladesonar reference --live --seconds 20 --direction ccw --config /etc/bladesonar/bladesonar.yaml
+
+With --live the recording is made through the daemon's own audio path (audio.backend) and
+the reference is stored atomically where the daemon looks for it (daemon.state_dir /
+daemon.reference) unless --out says otherwise; a running daemon picks it up within a few
+seconds or at once on SIGHUP (systemctl reload bladesonar).
 """
 
 
@@ -29,8 +35,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", metavar="CFG", help="YAML config (default: built-in defaults)")
     p.add_argument("--direction", required=True, choices=("cw", "ccw", "unknown"),
                    help="the fan's rotation during this recording, seen from the sensor")
-    p.add_argument("--out", required=True, metavar="REF", help="reference file to write (.npz)")
-    p.add_argument("wav", metavar="IN.wav", help="mono WAV recording")
+    p.add_argument("--out", metavar="REF", help="reference file to write (.npz); default with "
+                   "--live: the daemon's daemon.state_dir/daemon.reference")
+    p.add_argument("--live", action="store_true", help="record through the configured audio "
+                   "device (or the sim backend) instead of reading a WAV file")
+    p.add_argument("--seconds", type=float, default=20.0, metavar="S", help="with --live: how "
+                   "long to record, seconds (default 20; at least analysis.min_periods blade "
+                   "periods must fit)")
+    p.add_argument("--save-wav", metavar="WAV", help="with --live: also keep the recording")
+    p.add_argument("wav", metavar="IN.wav", nargs="?", help="mono WAV recording (not with --live)")
     p.set_defaults(func=run)
 
 
@@ -40,11 +53,32 @@ def run(args: argparse.Namespace) -> int:
     from ..io.reference import save_reference
     from ..io.wav import read_wav
 
+    from ..errors import InputError
+
     cfg = config.load(args.config)
-    x, _ = read_wav(args.wav, expect_rate=cfg.audio.sample_rate)
+    if args.live:
+        if args.wav:
+            raise InputError(f"give either --live or a recording ({args.wav}), not both")
+        if not 0.5 <= args.seconds <= 3600:
+            raise InputError(f"--seconds {args.seconds:g}: record between 0.5 and 3600 s "
+                             "(20 s is plenty for a fan above 0.2 Hz)")
+        from ..service.recorder import record
+
+        x = record(cfg, args.seconds)
+        if args.save_wav:
+            from ..io.wav import WavWriter
+
+            with WavWriter(args.save_wav, cfg.audio.sample_rate) as w:
+                w.write(x)
+        out_path = args.out or str(cfg.reference_path)
+    else:
+        if not args.wav or not args.out:
+            raise InputError("give a recording and --out REF (or --live to record one)")
+        x, _ = read_wav(args.wav, expect_rate=cfg.audio.sample_rate)
+        out_path = args.out
     ref = build_reference(x, cfg, args.direction)
-    save_reference(ref, args.out)
+    save_reference(ref, out_path)
     out = ref.summary()
-    out["out"] = str(args.out)
+    out["out"] = str(out_path)
     print(json.dumps(out))
     return 0

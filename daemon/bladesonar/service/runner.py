@@ -1,0 +1,262 @@
+"""The long-running service: audio in, live fingerprinting, messages out, systemd kept told.
+
+One processing loop owns all state; the audio threads and the MQTT client only move bytes.
+Faults at the edges (no reference yet, a broker away, an xrun, a bad new config on SIGHUP)
+become status, events and counters, never a crash loop.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from .. import config as config_mod
+from ..errors import BladesonarError, ReferenceFileError
+
+log = logging.getLogger(__name__)
+
+#: How often the loop looks for a reference file that is missing (also on SIGHUP).
+REFERENCE_POLL_S = 2.0
+#: Seconds without a captured pulse before the audio path is reopened.
+AUDIO_STALL_S = 5.0
+
+
+@dataclasses.dataclass
+class Counters:
+    """What the stats message reports; the loop is the only writer."""
+
+    pulses_processed: int = 0
+    audio_restarts: int = 0
+    reloads: int = 0
+    reload_errors: int = 0
+
+
+class Service:
+    """``bladesonar run``: wires config, reference, audio, analysis, publisher and systemd.
+
+    The edges are passed in as factories so the loopback tests run the real ones and a
+    phone without systemd simply gets the no-op notifier.
+    """
+
+    def __init__(self, cfg: config_mod.Config, *, config_path: str | None,
+                 audio_factory: Callable[[config_mod.Config], Any],
+                 publisher_factory: Callable[[config_mod.Config], Any],
+                 analyzer_factory: Callable[[config_mod.Config, Any], Any],
+                 reference_loader: Callable[[config_mod.Config], Any],
+                 notifier: Any, max_seconds: float | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.cfg = cfg
+        self.config_path = config_path
+        self.audio_factory = audio_factory
+        self.publisher_factory = publisher_factory
+        self.analyzer_factory = analyzer_factory
+        self.reference_loader = reference_loader
+        self.notifier = notifier
+        self.max_seconds = max_seconds
+        self.clock = clock
+        self.counters = Counters()
+        self._stop = threading.Event()
+        self._reload = threading.Event()
+        self.publisher: Any = None
+        self.audio: Any = None
+        self.analyzer: Any = None
+        self.reference: Any = None
+        self._ready_sent = False
+        self._last_state: dict[str, Any] | None = None
+        self._reference_problem: str | None = None
+        self._cpu_mark = (0.0, 0.0)
+
+    # -- signals -------------------------------------------------------------------------
+
+    def install_signal_handlers(self) -> None:
+        signal.signal(signal.SIGTERM, lambda *_: self._stop.set())
+        signal.signal(signal.SIGINT, lambda *_: self._stop.set())
+        signal.signal(signal.SIGHUP, lambda *_: self._reload.set())
+
+    def request_stop(self) -> None:
+        self._stop.set()
+
+    def request_reload(self) -> None:
+        self._reload.set()
+
+    # -- the loop ------------------------------------------------------------------------
+
+    def run(self) -> int:
+        t_start = self.clock()
+        self.publisher = self.publisher_factory(self.cfg)
+        self.publisher.start()
+        self.notifier.status("starting")
+        next_state = next_stats = t_start
+        last_pulse_t = t_start
+        try:
+            while not self._stop.is_set():
+                now = self.clock()
+                if self.max_seconds is not None and now - t_start >= self.max_seconds:
+                    log.info("ran for %.1f s as asked (--seconds); stopping", self.max_seconds)
+                    break
+                if self._reload.is_set():
+                    self._reload.clear()
+                    self._do_reload()
+                if self.analyzer is None and not self._load_reference():
+                    self._stop.wait(REFERENCE_POLL_S)
+                    continue
+                if self.audio is None:
+                    self._open_audio()
+                    last_pulse_t = self.clock()
+                block = self.audio.read_pulse(timeout=0.5)
+                now = self.clock()
+                if block is None:
+                    if now - last_pulse_t > AUDIO_STALL_S:
+                        log.warning("no audio for %.1f s; reopening the audio path",
+                                    now - last_pulse_t)
+                        self.notifier.status("no audio: reopening the device")
+                        self._close_audio()
+                        self.counters.audio_restarts += 1
+                        last_pulse_t = now
+                    continue
+                last_pulse_t = now
+                estimate = self.analyzer.push(block.samples, block.start_sample)
+                self.counters.pulses_processed += 1
+                if estimate is None:  # not aligned yet (or re-acquiring after a gap)
+                    continue
+                if not self._ready_sent:
+                    self._ready_sent = True
+                    self.notifier.ready(self._status_line(estimate))
+                    log.info("running: %s", self._status_line(estimate))
+                self.notifier.watchdog()
+                changed = self._events(estimate)
+                if changed or now >= next_state:
+                    self.publisher.publish_state(estimate)
+                    self.notifier.status(self._status_line(estimate))
+                    next_state = now + self.cfg.mqtt.publish_interval_s
+                if now >= next_stats:
+                    self.publisher.publish_stats(self.stats(now - t_start))
+                    next_stats = now + self.cfg.mqtt.stats_interval_s
+        finally:
+            self.notifier.stopping()
+            self._close_audio()
+            if self.publisher is not None:
+                try:
+                    self.publisher.publish_stats(self.stats(self.clock() - t_start))
+                finally:
+                    self.publisher.close()
+        return 0
+
+    # -- pieces --------------------------------------------------------------------------
+
+    def _status_line(self, est: dict[str, Any]) -> str:
+        rate = est.get("rate_hz")
+        rate_s = f"{rate:.3f} Hz" if isinstance(rate, (int, float)) else "rate unknown"
+        rot = est.get("rotation") or est.get("direction")
+        return f"{rot}, {rate_s}, confidence {est.get('confidence', 0):.2f}"
+
+    def _events(self, est: dict[str, Any]) -> bool:
+        """Publish events for changes of direction and start/stop; True if any."""
+        prev, self._last_state = self._last_state, est
+        if prev is None:
+            return True
+        fired = False
+        if prev.get("rotating") != est.get("rotating") and est.get("direction") != "unknown":
+            self.publisher.publish_event("started" if est.get("rotating") else "stopped",
+                                         direction=est.get("direction"),
+                                         rate_hz=est.get("rate_hz"))
+            fired = True
+        turning = ("same", "reversed")
+        if (prev.get("direction") in turning and est.get("direction") in turning
+                and prev["direction"] != est["direction"]):
+            self.publisher.publish_event("reversed", direction=est["direction"],
+                                         rotation=est.get("rotation"),
+                                         rate_hz=est.get("rate_hz"))
+            fired = True
+        return fired
+
+    def _load_reference(self) -> bool:
+        try:
+            ref = self.reference_loader(self.cfg)
+        except ReferenceFileError as exc:
+            problem = str(exc)
+            if problem != self._reference_problem:
+                self._reference_problem = problem
+                log.error("%s", problem)
+                self.notifier.status(f"waiting for a reference: {problem}")
+                self.publisher.publish_event("reference_missing", detail=problem)
+                self.publisher.publish_state({"direction": "unknown", "rotation": None,
+                                              "rate_hz": None, "rpm": None,
+                                              "relative_rate": None, "confidence": 0.0,
+                                              "rotating": None, "reference": None,
+                                              "status": "reference_missing"})
+            return False
+        self._reference_problem = None
+        self.reference = ref
+        self.analyzer = self.analyzer_factory(self.cfg, ref)
+        log.info("reference loaded: %s (%.3f Hz, %s)", ref.meta.get("id"),
+                 ref.meta.get("rate_hz", float("nan")), ref.meta.get("direction"))
+        return True
+
+    def _open_audio(self) -> None:
+        # a new capture stream is a new time base: align and warm up from scratch
+        self.analyzer = self.analyzer_factory(self.cfg, self.reference)
+        self.audio = self.audio_factory(self.cfg)
+        self.audio.start()
+
+    def _close_audio(self) -> None:
+        if self.audio is not None:
+            try:
+                self.audio.stop()
+            except Exception:  # noqa: BLE001 - closing must not mask the real error
+                log.exception("closing the audio path failed")
+            self.audio = None
+
+    def _do_reload(self) -> None:
+        """SIGHUP: validate the new config first; on any error keep the old one running."""
+        self.notifier.reloading()
+        self.counters.reloads += 1
+        try:
+            new = config_mod.load(self.config_path) if self.config_path else self.cfg
+        except BladesonarError as exc:
+            self.counters.reload_errors += 1
+            log.error("reload rejected, keeping the running config: %s", exc)
+            self.notifier.ready(f"reload rejected: {exc}")
+            return
+        old, self.cfg = self.cfg, new
+        if (old.audio, old.waveform, old.sim) != (new.audio, new.waveform, new.sim):
+            self._close_audio()
+        if old.mqtt != new.mqtt or old.device_id != new.device_id:
+            self.publisher.close()
+            self.publisher = self.publisher_factory(new)
+            self.publisher.start()
+        # The reference is re-read on every reload (a new one may have been recorded).
+        self.analyzer = None
+        self._ready_sent = False
+        log.info("configuration reloaded from %s", self.config_path)
+
+    def stats(self, uptime_s: float) -> dict[str, Any]:
+        """The stats message: health counters a user can alert on, plus the raw detail."""
+        audio = dict(self.audio.stats()) if self.audio is not None else {}
+        pub = dict(self.publisher.counters()) if self.publisher is not None else {}
+        an = dict(self.analyzer.stats()) if self.analyzer is not None else {}
+        t = os.times()
+        cpu = t.user + t.system
+        prev_cpu, prev_up = self._cpu_mark
+        self._cpu_mark = (cpu, uptime_s)
+        span = uptime_s - prev_up
+        return {
+            "uptime_s": round(uptime_s, 1),
+            "cpu_share": round((cpu - prev_cpu) / span, 4) if span > 0 else None,
+            "pulses_processed": self.counters.pulses_processed,
+            "dropped_pulses": an.get("dropped_pulses", 0),
+            "xruns": int(audio.get("xruns_capture", 0)) + int(audio.get("xruns_playback", 0)),
+            "reconnects": pub.get("reconnects", 0),
+            "dropped_events": pub.get("dropped_events", 0),
+            "clock_ppm": an.get("clock_ppm"),
+            "audio_restarts": self.counters.audio_restarts,
+            "reloads": self.counters.reloads,
+            "reload_errors": self.counters.reload_errors,
+            "audio": audio,
+        }
