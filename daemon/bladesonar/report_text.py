@@ -82,7 +82,8 @@ def markdown(rep: dict[str, Any], *, images: dict[str, str] | None = None) -> st
                  f"{env['lowest_snr_db']:g} dB** (the lowest SNR that gets there); the "
                  f"shortest window at any SNR is **{env['shortest_window_s']:g} s**.")
         L.append("- Shortest window by SNR: " + ", ".join(
-            f"{float(k):g} dB: {'–' if v is None else f'{v:g} s'}" for k, v in by.items()) + ".")
+            f"{float(k):g} dB: {'–' if v is None else f'{v:g} s'}"
+            for k, v in sorted(by.items(), key=lambda kv: float(kv[0]))) + ".")
     ns = [r["trials"] for r in rows if r["family"] == "window_snr"]
     if ns:
         from .runtime_report import _wilson_lower
@@ -134,7 +135,8 @@ def markdown(rep: dict[str, Any], *, images: dict[str, str] | None = None) -> st
         L += _table(["ratio", "rate Hz", "SNR"] + [f"{w:g} s: % correct; rate err %"
                                                   for w in show] + ["note"], body)
         L.append("")
-    for family, title in (("blades", "Blade count"), ("rooms", "Room geometry")):
+    for family, title in (("commensurate", "Blade period a whole number of pulses (17)"),
+                          ("blades", "Blade count"), ("rooms", "Room geometry")):
         g = [r for r in rows if r["family"] == family]
         if not g:
             continue
@@ -144,7 +146,9 @@ def markdown(rep: dict[str, Any], *, images: dict[str, str] | None = None) -> st
         show = [w for w in wins if w in (1.0, 2.0, 5.0, 30.0)] or wins
         body = []
         for key in sorted({(r["scene"], r["blades"], r["snr_db"]) for r in g}):
-            line = [key[0], str(key[1]), f"{key[2]:g} dB"]
+            line = [key[0], str(key[1]) + (f", ratio {g[0]['ratio']:.4g}"
+                                           if family == "commensurate" else ""),
+                    f"{key[2]:g} dB"]
             for w in show:
                 c = [r for r in g if (r["scene"], r["blades"], r["snr_db"]) == key
                      and r["window_s"] == w]

@@ -406,3 +406,26 @@ def limit_notes(rows: list[dict[str, Any]], prf_hz: float, slew_limit: float,
 
 def _pct(v: float) -> str:
     return f"{100 * v:.0f}"
+
+
+def refusal_notes(records: list[dict[str, Any]], min_pulses: int = 16) -> list[str]:
+    """Refusals that the pulse count does not explain (a pipeline problem, said plainly)."""
+    import re
+
+    odd: dict[float, int] = {}
+    total: dict[float, int] = {}
+    for r in records:
+        if "window_s" not in r:
+            continue
+        total[r["window_s"]] = total.get(r["window_s"], 0) + 1
+        m = re.match(r"only (\d+) usable pulses", r.get("error", ""))
+        if r.get("answer") == "refused" and m and int(m.group(1)) >= min_pulses:
+            odd[r["window_s"]] = odd.get(r["window_s"], 0) + 1
+    if not odd:
+        return []
+    parts = ", ".join(f"{w:g} s: {100 * n / total[w]:.0f} %" for w, n in sorted(odd.items()))
+    return [f"analysis.analyze refused trials that held enough pulses ({parts} of the trials; "
+            "'only N usable pulses (of N+1); at least 16 are needed'): a recording with fewer "
+            "valid pulses than analysis.static_window_s (3 s) whose final flush emits no "
+            "pulse never creates the analyzer. Those trials count as unknown here; the "
+            "windows under 3 s will improve when that is fixed."]

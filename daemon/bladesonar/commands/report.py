@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import ConfigError
     from ..progress import Progress
     from ..runtime_report import (aggregate, aggregate_reversals, default_grid, envelope,
-                                  jobs, limit_notes)
+                                  jobs, limit_notes, refusal_notes)
     from ..report_text import markdown
     from ..sim import load_scene
 
@@ -181,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
 
     rep = dict(format="bladesonar-report/1", meta=meta, grid=dataclasses.asdict(grid),
                envelope=env, limits=limit_notes(rows, cfg.prf_hz, cfg.tracking.slew_limit,
-                                                grid.ref_rate_hz),
+                                                grid.ref_rate_hz) + refusal_notes(records),
                references=ref_info, rows=rows, reversals=rev)
     images = {}
     if not args.no_plots:

@@ -11,6 +11,16 @@ import numpy as np
 from . import FIGSIZE, pyplot, save
 
 
+def _plain_ticks(ax) -> None:
+    """Log axes labelled 0.2, 1, 4 rather than 2x10^-1."""
+    from matplotlib.ticker import FuncFormatter
+
+    f = FuncFormatter(lambda v, _: f"{v:g}")
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_formatter(f)
+        axis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+
+
 def _by_snr(rows: list[dict[str, Any]], family: str = "window_snr"):
     ws = [r for r in rows if r["family"] == family]
     for s in sorted({r["snr_db"] for r in ws}):
@@ -46,6 +56,7 @@ def error_vs_time(rows: list[dict[str, Any]], out: str | Path, *, title: str = "
     a2.set_yscale("log")
     a2.set_xlabel("observation window (s)")
     a2.set_ylabel("rate error (%)  [solid: median, dashed: 95th pct]")
+    _plain_ticks(a2)
     for a in (a1, a2):
         a.grid(alpha=0.3, which="both")
     fig.suptitle(title or "accuracy against observation time (paper-room, 4 blades, "
@@ -66,10 +77,11 @@ def compute_vs_window(rows: list[dict[str, Any]], out: str | Path, *, title: str
     ax.plot(wins, med, "o-", color="C0", label="median")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    _plain_ticks(ax)
     ax.set_xlabel("observation window (s)")
     ax.set_ylabel("analyze CPU time per second of audio (ms/s)")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
-    ax.set_title(title or "compute time against window (fixed start-up cost dominates "
-                 "short windows)", fontsize=10)
+    ax.set_title(title or "analyze CPU time per second of audio (windows under 3 s: partly "
+                 "refused recordings, which cost little)", fontsize=10)
     return save(fig, out)
