@@ -7,6 +7,7 @@ into the WAV and truth writers, print a one-line JSON summary.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 
 EPILOG = """\
@@ -132,7 +133,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
+def _run(args: argparse.Namespace) -> int:
     import json
     import logging
     from pathlib import Path
@@ -146,8 +147,6 @@ def run(args: argparse.Namespace) -> int:
     from ..sim.render import Simulator
     from ..sim.schedule import Schedule
 
-    if args.quiet:
-        logging.getLogger("bladesonar.sim").setLevel(logging.ERROR)
     cfg = config.load(args.config)
     scene = load_scene(args.scene)
     if args.rate is not None and args.schedule is not None:
@@ -210,3 +209,16 @@ def run(args: argparse.Namespace) -> int:
                           noise_sigma=sim.sigma,
                           start_offset_samples=sim.offset)))
     return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    # --quiet silences the simulator's warnings for this run only (the command may run
+    # in-process, e.g. from tests or the report, where the logger outlives it)
+    sim_log = logging.getLogger("bladesonar.sim")
+    old = sim_log.level
+    if args.quiet:
+        sim_log.setLevel(logging.ERROR)
+    try:
+        return _run(args)
+    finally:
+        sim_log.setLevel(old)
