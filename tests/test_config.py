@@ -50,9 +50,9 @@ def test_file_errors_carry_the_line_number(tmp_path):
 
 
 def test_shared_sample_config_loads():
-    from conftest import SHARED_DATA
+    from conftest import require_shared_sample
 
-    cfg = config.load(SHARED_DATA / "fan-3d-sample" / "config.yaml")
+    cfg = config.load(require_shared_sample() / "config.yaml")
     assert (cfg.scene.gate_start_m, cfg.scene.gate_stop_m, cfg.scene.blades) == (1.0, 4.5, 4)
 
 

@@ -10,13 +10,12 @@ from bladesonar.analysis import analyze, build_reference
 from bladesonar.io.wav import read_wav
 from bladesonar.live import LiveAnalyzer
 
-from conftest import SHARED_DATA
-
-SAMPLE = SHARED_DATA / "fan-3d-sample"
+from conftest import require_shared_sample
 
 
 @pytest.fixture(scope="module")
 def sample():
+    SAMPLE = require_shared_sample()
     cfg = config.load(SAMPLE / "config.yaml")
     ref_x, _ = read_wav(SAMPLE / "reference.wav", expect_rate=cfg.audio.sample_rate)
     probe, _ = read_wav(SAMPLE / "probe.wav", expect_rate=cfg.audio.sample_rate)
