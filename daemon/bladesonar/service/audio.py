@@ -1,0 +1,161 @@
+"""The daemon's audio edge: one interface, two backends (a real ALSA card, the simulator).
+
+The processing loop asks for one pulse repetition interval (PRI) of capture at a time.
+Every block carries its position in the capture stream and a ``discontinuity`` flag:
+after an xrun or a dropped period the offset between playback and capture is no longer
+known, so the consumer must re-acquire the direct-coupling edge instead of trusting the
+old range offset. The audio threads only move bytes; conversion to float64 happens here,
+in the consumer's thread.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+
+from ..errors import AudioDeviceError
+
+#: Bytes per sample and full scale of each supported ALSA sample format.
+FORMATS = {"S16_LE": (np.dtype("<i2"), 32768.0), "S32_LE": (np.dtype("<i4"), 2147483648.0)}
+
+
+@dataclass(frozen=True)
+class PulseBlock:
+    """One PRI of capture."""
+
+    samples: np.ndarray
+    """float64, shape (pri_samples,), full scale = 1."""
+    start_sample: int
+    """Capture-stream index of ``samples[0]``; a jump means samples were lost."""
+    discontinuity: bool = False
+    """Samples were lost or the playback/capture offset changed before this block
+    (xrun, ring overflow, restart): re-acquire the direct-coupling edge."""
+
+
+class AudioIO(Protocol):
+    """What the daemon needs from an audio path (ALSA, the simulator, a test double)."""
+
+    def start(self) -> None: ...
+
+    def read_pulse(self, timeout: float) -> PulseBlock | None:
+        """The next PRI of capture, or None if none arrived within ``timeout`` seconds."""
+        ...
+
+    def stats(self) -> dict[str, int]:
+        """Health counters: xruns_playback, xruns_capture, ring_overflows,
+        periods_written, periods_read, periods_delivered."""
+        ...
+
+    def stop(self, timeout: float = 2.0) -> None: ...
+
+
+def open_audio(cfg: Any) -> AudioIO:
+    """The audio path ``cfg.audio.backend`` names (not started)."""
+    if cfg.audio.backend == "sim":
+        from .sim_audio import SimAudio
+        return SimAudio(cfg)
+    if cfg.audio.backend == "alsa":
+        from .alsa_audio import AlsaAudio
+        return AlsaAudio(cfg)
+    raise AudioDeviceError(f"audio.backend {cfg.audio.backend!r}: use alsa or sim")
+
+
+# -- sample formats (pure) -------------------------------------------------------------
+
+
+def decode(data: bytes, fmt: str) -> np.ndarray:
+    """Raw little-endian PCM bytes -> float64, full scale = 1."""
+    dtype, scale = FORMATS[fmt]
+    return np.frombuffer(data, dtype=dtype).astype(np.float64) / scale
+
+
+def encode(x: np.ndarray, fmt: str) -> bytes:
+    """float64 (full scale = 1) -> raw little-endian PCM bytes, rounded and clipped."""
+    dtype, scale = FORMATS[fmt]
+    info = np.iinfo(dtype)
+    y = np.clip(np.rint(np.asarray(x, dtype=np.float64) * scale), info.min, info.max)
+    return y.astype(dtype).tobytes()
+
+
+def bytes_per_sample(fmt: str) -> int:
+    return FORMATS[fmt][0].itemsize
+
+
+# -- the bounded ring between an audio thread and the consumer -------------------------
+
+
+class RawPeriod(NamedTuple):
+    data: bytes
+    start_sample: int
+    discontinuity: bool
+
+
+class CaptureRing:
+    """Bounded FIFO of raw capture periods; when full the oldest is dropped and counted.
+
+    Dropping the oldest keeps the newest audio (what the tracker needs); the gap in
+    ``start_sample`` and the carried ``discontinuity`` flag tell the consumer.
+    """
+
+    def __init__(self, maxlen: int) -> None:
+        self._q: collections.deque[RawPeriod] = collections.deque()
+        self._maxlen = int(maxlen)
+        self._cond = threading.Condition()
+        self.overflows = 0
+        self.closed = False
+
+    def put(self, item: RawPeriod) -> None:
+        with self._cond:
+            if len(self._q) >= self._maxlen:
+                dropped = self._q.popleft()
+                self.overflows += 1
+                if self._q:
+                    head = self._q[0]
+                    self._q[0] = head._replace(discontinuity=True)
+                else:
+                    item = item._replace(discontinuity=True)
+                del dropped
+            self._q.append(item)
+            self._cond.notify()
+
+    def get(self, timeout: float) -> RawPeriod | None:
+        deadline = time.monotonic() + max(float(timeout), 0.0)
+        with self._cond:
+            while not self._q:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(left)
+            return self._q.popleft()
+
+    def close(self) -> None:
+        """No more periods will come (a waiting consumer still waits out its timeout, so
+        a caller polling a dead device does not spin)."""
+        with self._cond:
+            self.closed = True
+            self._cond.notify_all()
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._q)
+
+
+class BlockDecoder:
+    """Consumer side: raw period -> PulseBlock, flagging any jump in the sample index."""
+
+    def __init__(self, fmt: str) -> None:
+        self.fmt = fmt
+        self._next: int | None = None
+        self.delivered = 0
+
+    def __call__(self, raw: RawPeriod) -> PulseBlock:
+        x = decode(raw.data, self.fmt)
+        disc = raw.discontinuity or (self._next is not None and raw.start_sample != self._next)
+        self._next = raw.start_sample + len(x)
+        self.delivered += 1
+        return PulseBlock(x, raw.start_sample, bool(disc))
