@@ -175,6 +175,9 @@ class PulseAligner:
     warmup : int
         First pulses marked WARMUP (not used): a recording that starts with the pulse
         train lacks the previous pulse's late echoes in its first window.
+    max_lead_in : int
+        PRIs without a direct pulse tolerated at the start of a stream (capture runs
+        before the first played pulse returns); beyond them the stream is refused.
 
     Notes
     -----
@@ -200,6 +203,8 @@ class PulseAligner:
     _pending: _Edge | None = None
     _ended: bool = False
     _acq_pris: int = 3
+    max_lead_in: int = 64
+    _lead_in: int = 0                # PRIs skipped before the first direct pulse
 
     def __post_init__(self) -> None:
         if self.pri < 64:
@@ -248,10 +253,15 @@ class PulseAligner:
 
     def _acquire(self, final: bool) -> bool:
         need = self._acq_pris * self.pri + KERNEL_HALF + 1
-        if self._end < need and not final:
+        if len(self._buf) < need and not final:
             return False
         n = max(1, min(self._acq_pris, (len(self._buf) - KERNEL_HALF - 1) // self.pri))
         if len(self._buf) < self.pri:
+            if final and self._lead_in:
+                raise InputError(
+                    f"no direct-coupling pulse found in {self._lead_in + 1} PRIs: check that "
+                    "the speaker plays the pulse train, the microphone hears it, and "
+                    f"waveform.pri_samples ({self.pri}) matches the recording")
             return False
         fold = np.zeros(self.pri)
         for k in range(n):
@@ -259,16 +269,28 @@ class PulseAligner:
         p = int(np.argmax(fold))
         typical = float(np.median(fold)) + 1e-300
         if fold[p] < 8.0 * typical:
+            if not final and self._lead_in < self.max_lead_in:
+                # capture usually starts before the first played pulse comes back (device
+                # latency, a pre-roll of silence): skip one PRI and look again
+                self._buf = self._buf[self.pri:]
+                self._offset += self.pri
+                self._lead_in += 1
+                return self._acquire(final)
             raise InputError(
-                "no direct-coupling pulse found: the strongest sample of the first PRI is only "
+                "no direct-coupling pulse found: the strongest sample of the first PRIs is only "
                 f"{fold[p] / typical:.1f}x the typical level (need 8x). Check that the speaker "
                 "plays the pulse train, the microphone hears it, and waveform.pri_samples "
                 f"({self.pri}) matches the recording")
+        # begin with the first folded PRI that holds the pulse (after a lead-in of silence
+        # or noise the earlier ones do not)
+        heights = np.abs(np.nan_to_num(self._buf[p:n * self.pri:self.pri]))
+        p += self.pri * int(np.argmax(heights >= 0.5 * heights.max()))
         if p < KERNEL_HALF + self.search:
             p += self.pri  # too close to the start to interpolate: begin with pulse 2
         x = self._buf
         self._polarity = 1.0 if x[p] >= 0 else -1.0
-        seg = self._polarity * self._seg(p - KERNEL_HALF, p + KERNEL_HALF + 1)
+        at = self._offset + p                 # stream position (_seg counts in those)
+        seg = self._polarity * self._seg(at - KERNEL_HALF, at + KERNEL_HALF + 1)
         off, height = refine_peak(seg)
         self._amp = height
         self._next = self._offset + p + off
