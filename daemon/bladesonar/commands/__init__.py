@@ -3,4 +3,5 @@ the work. Heavy imports happen inside ``run`` so that ``bladesonar --help`` and 
 start fast and never pull in optional stages (plots)."""
 
 #: Subcommand modules in the order ``bladesonar --help`` lists them.
-COMMANDS = ("simulate", "reference", "analyze", "plot", "report", "run", "check_config")
+COMMANDS = ("simulate", "reference", "analyze", "plot", "report", "run", "room",
+            "check_config")

@@ -16,6 +16,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
+from ..errors import ConfigError
 from .audio import PulseBlock
 
 log = logging.getLogger(__name__)
@@ -50,7 +51,12 @@ class SimAudio:
         from ..sim.render import Simulator
 
         c = self.cfg
-        self._scene = load_scene(c.path(c.sim.scene))
+        try:
+            self._scene = load_scene(c.path(c.sim.scene))
+        except ConfigError as exc:
+            if exc.key != "--scene":
+                raise
+            raise ConfigError("sim.scene", c.sim.scene, exc.allowed) from exc
         self._make = lambda seed: Simulator(self._scene, c, c.sim.schedule, snr_db=None,
                                             seed=seed)
         # noise level: the simulator's SNR definition over the first stretch of the schedule
