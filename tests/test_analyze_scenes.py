@@ -9,6 +9,7 @@ import pytest
 
 from bladesonar import config
 from bladesonar.analysis import analyze, build_reference
+from bladesonar.errors import InputError
 from bladesonar.sim import load_scene
 from bladesonar.sim.render import simulate
 
@@ -115,3 +116,38 @@ def test_reversal_mid_recording_is_seen_in_the_track(scene, reference):
     after = [i for i in range(len(rows)) if t[i] > 4.0 and d[i] == "reversed"]
     assert after and t[after[0]] - 4.0 < 2.0, (t[after[0]] if after else None)
     assert all(x == "reversed" for x in d[int(np.searchsorted(t, 6.5)):])
+
+
+@pytest.mark.parametrize("seed", [2, 3, 8])
+def test_recording_shorter_than_the_static_window_is_analysed(scene, reference, seed):
+    """2 s (66 valid pulses) < analysis.static_window_s (3 s); with these seeds the
+    aligner's final flush emits no pulse, which used to leave the analyzer unmade and the
+    recording refused ("only 66 usable pulses (of 67)") although it holds more than
+    analysis.min_pulses."""
+    cfg = _cfg()
+    assert 2.0 < cfg.analysis.static_window_s
+    x, _ = _sim(scene, 2.0, "ccw:0.5:2", seed=seed)
+    s, _ = analyze(x, cfg, reference(4))
+    assert s["used_pulses"] >= cfg.analysis.min_pulses, s
+    assert s["window_s"] <= 2.0, s
+    assert s["direction"] in ("same", "unknown") and s["rotation"] in ("ccw", None), s
+    # fewer than analysis.min_pulses is still refused, naming the count
+    short = config.replace(cfg, analysis={"min_pulses": 67})
+    with pytest.raises(InputError,
+                       match=r"only 66 usable pulses \(of 67\); at least 67 are needed: record "
+                             r"longer$"):
+        analyze(x, short, reference(4))
+
+
+def test_end_of_the_pulse_train_is_not_counted_as_dropped(scene, reference):
+    """The capture runs on after the last pulse (no direct pulse in the last PRI): the
+    pulses at the end are not used, but neither counted nor warned as drop-outs."""
+    x, _ = _sim(scene, 6.0, "ccw:0.5:6", seed=21)
+    tail = 1e-4 * np.random.default_rng(0).standard_normal(1400)
+    y = np.concatenate([x, tail])
+    s, _ = analyze(y, _cfg(), reference(4))
+    assert s["dropped_pulses"] == 0 and not any("dropped" in w for w in s["warnings"]), s
+    ref = build_reference(np.concatenate([_sim(scene, 12.0, "ccw:0.5:12", seed=1)[0], tail]),
+                          _cfg(), "ccw")
+    assert ref.meta["dropped_pulses"] == 0 and not ref.meta["warnings"], ref.meta
+    assert s["direction"] == "same" and abs(s["relative_rate"] - 1.0) < 0.03, s

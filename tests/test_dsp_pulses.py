@@ -7,7 +7,7 @@ import pytest
 
 from bladesonar.dsp.gate import Gate, delay_to_range, make_gate, range_to_delay
 from bladesonar.dsp.pulses import DROPOUT, MISSING, OK, WARMUP, AlignedPulses, \
-    PulseAligner, align, check_recording
+    PulseAligner, align, check_recording, count_dropped, end_of_stream
 from bladesonar.errors import InputError
 from synth_pulses import add_pulse, pulse_train
 
@@ -108,6 +108,27 @@ def test_zeroed_gap_marks_pulses_not_ok():
     bad = set(a.index[a.status != OK].tolist())
     assert {10, 11, 12} <= bad
     assert a.status[list(a.index).index(20)] == OK
+
+
+def test_end_of_the_pulse_train_is_not_a_dropout():
+    """The capture outlasts the pulse train (last direct pulse absent): the pulse before
+    it and the empty one are not usable, but they are not drop-outs either."""
+    x, edges, _ = pulse_train(30, PRI, rate=0.05, noise=1e-3, seed=4)
+    a = align(x, PRI, _gate())
+    assert a.status[-1] == MISSING and a.status[-2] == DROPOUT
+    assert end_of_stream(a.status) == 2
+    assert count_dropped(a.status) == 2 and count_dropped(a.status, ended=True) == 0
+    # a real drop-out inside the stream still counts
+    s = int(edges[10] - 50)
+    x[s:s + 3 * PRI] = 0.0
+    b = align(x, PRI, _gate())
+    assert count_dropped(b.status, ended=True) >= 3
+    assert count_dropped(b.status, ended=True) == count_dropped(b.status) - 2
+    assert end_of_stream(np.array([OK, DROPOUT, OK])) == 0
+    assert end_of_stream(np.array([MISSING, MISSING])) == 2
+    # the empty successor's own window cut by the end of the recording: not emitted
+    assert end_of_stream(np.array([OK, OK, DROPOUT])) == 1
+    assert end_of_stream(np.array([OK, DROPOUT, DROPOUT, MISSING])) == 2
 
 
 def test_first_pulse_is_warmup_and_rows_of_bad_pulses_are_zero():

@@ -27,7 +27,7 @@ from .dsp.decide import DecideSettings, Decision, MotionMeter, decide
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
 from .dsp.period import estimate_period
 from .dsp.pulses import OK, STATUS_NAMES, WARMUP, AlignedPulses, PulseAligner, align, \
-    check_recording
+    check_recording, count_dropped
 from .dsp.rangedoppler import range_doppler
 from .dsp.tracking import Tracker, TrackerSettings
 from .errors import EstimationError, InputError, ReferenceFileError
@@ -183,7 +183,7 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     quality = fp.explained_fraction(feats, table, phases)
     blade_hz = r * prf
     rate_hz = blade_hz / cfg.scene.blades
-    dropped = int(np.count_nonzero((full.status != OK) & (full.status != WARMUP)))
+    dropped = count_dropped(full.status, ended=True)
     if dropped:
         warnings.append(f"{dropped} pulses dropped or corrupt (not used)")
     meta = {
@@ -360,6 +360,16 @@ def new_analyzer(cfg: Config, ref: Reference, first: np.ndarray | None = None) -
     return PulseAnalyzer(cfg, ref, StaticRemover(1.0 / w, mean))
 
 
+def _start(cfg: Config, ref: Reference, held: list[AlignedPulses], w: int, rows: list[dict],
+           track: bool) -> PulseAnalyzer:
+    """The analyzer, primed from the first ``w`` valid pulses held, with them processed."""
+    first = np.concatenate([h.pulses[h.valid] for h in held])[:w]
+    an = new_analyzer(cfg, ref, first)
+    for h in held:
+        rows.extend(an.process(h, rows=track))
+    return an
+
+
 def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
             ) -> tuple[dict[str, Any], list[dict]]:
     """Direction and rate of a recording against a reference.
@@ -395,6 +405,7 @@ def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
     rows: list[dict] = []
     n_pulses = n_valid = 0
     edges: list[np.ndarray] = []
+    status: list[np.ndarray] = []
     for i in range(0, len(x) + block, block):
         got = aligner.push(x[i:i + block]) if i < len(x) else aligner.flush()
         if not len(got):
@@ -402,29 +413,33 @@ def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
         n_pulses += len(got)
         n_valid += int(got.valid.sum())
         edges.append(got.edges[got.valid])
+        status.append(got.status)
         if an is None:
             held.append(got)
-            if n_valid < w and i < len(x):
+            if n_valid < w:
                 continue
-            first = np.concatenate([h.pulses[h.valid] for h in held])[:w]
-            an = new_analyzer(cfg, ref, first)
-            for h in held:
-                rows.extend(an.process(h, rows=track))
+            an = _start(cfg, ref, held, w, rows, track)
             held = []
         else:
             rows.extend(an.process(got, rows=track))
+    # a recording shorter than the static window: prime from all it holds
+    if an is None and n_valid >= a.min_pulses:
+        an = _start(cfg, ref, held, w, rows, track)
+    # the end of the pulse train is not a drop-out (the pulses there are not used either)
+    dropped = count_dropped(np.concatenate(status) if status else np.zeros(0), ended=True)
     if an is None or n_valid < a.min_pulses:
+        fix = "record longer" + (" or fix the drop-outs" if dropped else "")
         raise InputError(f"only {n_valid} usable pulses (of {n_pulses}); at least "
-                         f"{a.min_pulses} are needed: record longer or fix the drop-outs")
+                         f"{a.min_pulses} are needed: {fix}")
     d = an.decision()
-    if an.dropped:
-        warnings.append(f"{an.dropped} pulses dropped or corrupt (skipped)")
+    if dropped:
+        warnings.append(f"{dropped} pulses dropped or corrupt (skipped)")
     warnings.extend(d.warnings)
     e = np.concatenate(edges)
     summary = d.as_dict()
     summary.update(pulses=int(n_pulses), used_pulses=int(n_valid),
-                   dropped_pulses=int(an.dropped),
-                   window_s=round(an.window / cfg.prf_hz, 3),
+                   dropped_pulses=dropped,
+                   window_s=round(min(an.window, an.seen) / cfg.prf_hz, 3),
                    outliers=int(an.tracker.outliers),
                    clock_ppm=round((float(np.median(np.diff(e))) / pri - 1.0) * 1e6, 1)
                    if len(e) > 2 else None,

@@ -417,6 +417,39 @@ class PulseAligner:
             self._offset += drop
 
 
+def end_of_stream(status: np.ndarray) -> int:
+    """How many pulses at the end of a *finished* stream belong to its end, not to a drop-out.
+
+    When the pulse train stops before the capture does, the aligner finds no direct pulse
+    where the next one is due: the trailing pulses are MISSING, and the pulse before them
+    is marked DROPOUT only because its successor is missing (when that successor's own
+    window is cut by the end of the recording it is not emitted at all, and the DROPOUT
+    pulse is the last one). None of them is usable, but none is a capture drop-out
+    either: they are neither counted nor warned about.
+
+    Parameters
+    ----------
+    status : ndarray, shape (n,)
+        Status of every pulse of the stream, in order.
+    """
+    s = np.asarray(status)
+    n = 0
+    while n < len(s) and s[len(s) - 1 - n] == MISSING:
+        n += 1
+    if n < len(s) and s[len(s) - 1 - n] == DROPOUT:
+        n += 1
+    return n
+
+
+def count_dropped(status: np.ndarray, *, ended: bool = False) -> int:
+    """Pulses dropped or corrupt (not OK, not warm-up); with ``ended`` the end of a
+    finished stream (:func:`end_of_stream`) is not counted."""
+    s = np.asarray(status)
+    if ended:
+        s = s[:len(s) - end_of_stream(s)]
+    return int(np.count_nonzero((s != OK) & (s != WARMUP)))
+
+
 def align(x: np.ndarray, pri: int, gate: Gate, **kwargs) -> AlignedPulses:
     """One-shot alignment of a whole recording (same result as feeding it in chunks).
 
