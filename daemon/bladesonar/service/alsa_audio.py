@@ -197,7 +197,8 @@ class AlsaAudio:
                 if self._flag_next.is_set():
                     self._flag_next.clear()
                     disc = True
-                self._ring.put(RawPeriod(bytes(pending[:self.period_bytes]), start, disc))
+                self._ring.put(RawPeriod(bytes(pending[:self.period_bytes]), start, disc,
+                                         now))
                 del pending[:self.period_bytes]
                 start += pri
                 disc = False

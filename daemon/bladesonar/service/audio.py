@@ -35,6 +35,8 @@ class PulseBlock:
     discontinuity: bool = False
     """Samples were lost or the playback/capture offset changed before this block
     (xrun, ring overflow, restart): re-acquire the direct-coupling edge."""
+    captured_at: float | None = None
+    """``time.monotonic()`` when the block's last sample was captured (latency stats)."""
 
 
 class AudioIO(Protocol):
@@ -93,6 +95,7 @@ class RawPeriod(NamedTuple):
     data: bytes
     start_sample: int
     discontinuity: bool
+    captured_at: float | None = None
 
 
 class CaptureRing:
@@ -158,4 +161,4 @@ class BlockDecoder:
         disc = raw.discontinuity or (self._next is not None and raw.start_sample != self._next)
         self._next = raw.start_sample + len(x)
         self.delivered += 1
-        return PulseBlock(x, raw.start_sample, bool(disc))
+        return PulseBlock(x, raw.start_sample, bool(disc), raw.captured_at)

@@ -11,6 +11,7 @@ import dataclasses
 import logging
 import os
 import signal
+import statistics
 import threading
 import time
 from pathlib import Path
@@ -25,6 +26,8 @@ log = logging.getLogger(__name__)
 REFERENCE_POLL_S = 2.0
 #: Seconds without a captured pulse before the audio path is reopened.
 AUDIO_STALL_S = 5.0
+#: Wait before reopening the audio path after a capture without a usable pulse train.
+SIGNAL_RETRY_S = 10.0
 
 
 @dataclasses.dataclass
@@ -35,6 +38,7 @@ class Counters:
     audio_restarts: int = 0
     reloads: int = 0
     reload_errors: int = 0
+    signal_errors: int = 0
 
 
 class Service:
@@ -69,8 +73,13 @@ class Service:
         self.reference: Any = None
         self._ready_sent = False
         self._last_state: dict[str, Any] | None = None
+        self._known_rotating: bool | None = None   # last rotating value that was known
+        self._known_turning: str | None = None     # last same/reversed while turning
         self._reference_problem: str | None = None
+        self._signal_problem_text: str | None = None
         self._cpu_mark = (0.0, 0.0)
+        #: end of the captured period -> its state handed to the publisher, seconds
+        self._latencies: list[float] = []
 
     # -- signals -------------------------------------------------------------------------
 
@@ -89,6 +98,8 @@ class Service:
 
     def run(self) -> int:
         t_start = self.clock()
+        t = os.times()
+        self._cpu_mark = (t.user + t.system, 0.0)   # start-up (imports) is not steady state
         self.publisher = self.publisher_factory(self.cfg)
         self.publisher.start()
         self.notifier.status("starting")
@@ -121,10 +132,17 @@ class Service:
                         last_pulse_t = now
                     continue
                 last_pulse_t = now
-                estimate = self.analyzer.push(block.samples, block.start_sample)
+                try:
+                    estimate = self.analyzer.push(block.samples, block.start_sample)
+                except BladesonarError as exc:
+                    # e.g. no direct-coupling pulse: speaker muted, wrong device, unplugged
+                    self._signal_problem(str(exc))
+                    self._stop.wait(SIGNAL_RETRY_S)
+                    continue
                 self.counters.pulses_processed += 1
                 if estimate is None:  # not aligned yet (or re-acquiring after a gap)
                     continue
+                self._signal_problem_text = None
                 if not self._ready_sent:
                     self._ready_sent = True
                     self.notifier.ready(self._status_line(estimate))
@@ -132,7 +150,9 @@ class Service:
                 self.notifier.watchdog()
                 changed = self._events(estimate)
                 if changed or now >= next_state:
-                    self.publisher.publish_state(estimate)
+                    self.publisher.publish_state({**estimate, "status": "ok"})
+                    if block.captured_at is not None:
+                        self._latencies.append(self.clock() - block.captured_at)
                     self.notifier.status(self._status_line(estimate))
                     next_state = now + self.cfg.mqtt.publish_interval_s
                 if now >= next_stats:
@@ -157,24 +177,50 @@ class Service:
         return f"{rot}, {rate_s}, confidence {est.get('confidence', 0):.2f}"
 
     def _events(self, est: dict[str, Any]) -> bool:
-        """Publish events for changes of direction and start/stop; True if any."""
-        prev, self._last_state = self._last_state, est
-        if prev is None:
-            return True
-        fired = False
-        if prev.get("rotating") != est.get("rotating") and est.get("direction") != "unknown":
-            self.publisher.publish_event("started" if est.get("rotating") else "stopped",
-                                         direction=est.get("direction"),
-                                         rate_hz=est.get("rate_hz"))
-            fired = True
+        """Publish events for changes of direction and start/stop; True if any.
+
+        Changes are judged between *known* states: an 'unknown' stretch in between (a
+        noisy window) neither starts nor stops the fan, so each real change fires once.
+        """
+        first = self._last_state is None
+        self._last_state = est
+        fired = first
+        rotating = est.get("rotating")
+        if est.get("direction") != "unknown" and rotating is not None:
+            if self._known_rotating is not None and rotating != self._known_rotating:
+                self.publisher.publish_event("started" if rotating else "stopped",
+                                             direction=est.get("direction"),
+                                             rotation=est.get("rotation"),
+                                             rate_hz=est.get("rate_hz"))
+                fired = True
+            self._known_rotating = rotating
         turning = ("same", "reversed")
-        if (prev.get("direction") in turning and est.get("direction") in turning
-                and prev["direction"] != est["direction"]):
-            self.publisher.publish_event("reversed", direction=est["direction"],
-                                         rotation=est.get("rotation"),
-                                         rate_hz=est.get("rate_hz"))
-            fired = True
+        if est.get("direction") in turning:
+            if self._known_turning is not None and est["direction"] != self._known_turning:
+                self.publisher.publish_event("reversed", direction=est["direction"],
+                                             rotation=est.get("rotation"),
+                                             rate_hz=est.get("rate_hz"))
+                fired = True
+            self._known_turning = est["direction"]
+        elif est.get("direction") == "stopped":
+            self._known_turning = None     # a restart in either sense is 'started'
         return fired
+
+    def _signal_problem(self, problem: str) -> None:
+        """The capture holds no usable pulse train: say so once, reopen the audio later."""
+        self.counters.signal_errors += 1
+        if problem != self._signal_problem_text:
+            self._signal_problem_text = problem
+            log.error("no usable echo: %s; retrying in %.0f s", problem, SIGNAL_RETRY_S)
+            self.publisher.publish_state({"direction": "unknown", "rotation": None,
+                                          "rate_hz": None, "rpm": None,
+                                          "relative_rate": None, "confidence": 0.0,
+                                          "rotating": None,
+                                          "reference": self.reference.meta.get("id"),
+                                          "status": "no_signal", "detail": problem})
+        self.notifier.status(f"no usable echo: {problem}")
+        self._close_audio()
+        self._last_state = None
 
     def _load_reference(self) -> bool:
         try:
@@ -246,6 +292,7 @@ class Service:
         prev_cpu, prev_up = self._cpu_mark
         self._cpu_mark = (cpu, uptime_s)
         span = uptime_s - prev_up
+        lat, self._latencies = self._latencies, []
         return {
             "uptime_s": round(uptime_s, 1),
             "cpu_share": round((cpu - prev_cpu) / span, 4) if span > 0 else None,
@@ -256,7 +303,10 @@ class Service:
             "dropped_events": pub.get("dropped_events", 0),
             "clock_ppm": an.get("clock_ppm"),
             "audio_restarts": self.counters.audio_restarts,
+            "latency_ms": ({"median": round(1e3 * statistics.median(lat), 1),
+                            "max": round(1e3 * max(lat), 1), "n": len(lat)} if lat else None),
             "reloads": self.counters.reloads,
             "reload_errors": self.counters.reload_errors,
+            "signal_errors": self.counters.signal_errors,
             "audio": audio,
         }

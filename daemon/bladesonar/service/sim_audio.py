@@ -107,7 +107,8 @@ class SimAudio:
                     self.ring_overflows += 1
                     self._disc = True
         x = self._render()
-        block = PulseBlock(x, self._k * self.pri, self._disc)
+        done = self._t0 + (self._k + 1) * self.pri / self.fs if self.cfg.sim.realtime else None
+        block = PulseBlock(x, self._k * self.pri, self._disc, done)
         self._k += 1
         self._disc = False
         self.periods_read += 1
