@@ -10,6 +10,9 @@ against the in-process scene simulator (audio.backend: sim), tracks the fan agai
 reference in daemon.state_dir, and publishes on MQTT (mqtt.host) or, with no broker
 configured, prints the same messages as JSON lines on stdout.
 
+Exit status: 0 after a stop, 78 for an invalid config file (systemd does not restart
+it: RestartPreventExitStatus=78), 2 for other errors (retried by systemd).
+
 Signals: SIGTERM/SIGINT stop gracefully (availability offline, devices closed); SIGHUP
 re-reads the config (a bad new config is logged and the old one keeps running) and the
 reference.
@@ -18,6 +21,10 @@ examples:
   bladesonar run --config /etc/bladesonar/bladesonar.yaml
   bladesonar run --config config/demo.yaml --seconds 60
 """
+
+
+#: Exit status of ``run`` for an invalid config file (sysexits EX_CONFIG).
+EXIT_CONFIG = 78
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -47,7 +54,7 @@ def load_reference_for(cfg):
 
 def run(args: argparse.Namespace) -> int:
     from .. import config
-    from ..errors import InputError
+    from ..errors import ConfigError, InputError
     from ..live import LiveAnalyzer
     from ..service.audio import open_audio
     from ..service.logs import setup_logging
@@ -58,7 +65,12 @@ def run(args: argparse.Namespace) -> int:
     setup_logging(getattr(args, "debug", False))
     if args.seconds is not None and args.seconds <= 0:
         raise InputError(f"--seconds {args.seconds:g}: give a positive duration")
-    cfg = config.load(args.config)
+    try:
+        cfg = config.load(args.config)
+    except ConfigError as exc:
+        # EX_CONFIG: the unit's RestartPreventExitStatus stops a restart loop on a bad file
+        exc.exit_code = EXIT_CONFIG
+        raise
     svc = Service(cfg, config_path=args.config, audio_factory=open_audio,
                   publisher_factory=make_publisher,
                   analyzer_factory=lambda c, r: LiveAnalyzer(c, r,

@@ -73,6 +73,11 @@ def load_reference(path: str | Path) -> Reference:
             table = np.array(z["table"], dtype=np.float64)
             mean_pulse = np.array(z["mean_pulse"], dtype=np.float64)
             meta = json.loads(str(z["meta"]))
+    except PermissionError as exc:
+        raise ReferenceFileError(
+            f"{p}: cannot be read ({exc.strerror}); it belongs to another user: record it as "
+            "the daemon's user (sudo -u bladesonar bladesonar reference --live ...) or chown "
+            "it to that user") from exc
     except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
         raise ReferenceFileError(f"{p}: not a bladesonar reference file ({exc}); make it "
                                  "again with 'bladesonar reference'") from exc

@@ -279,8 +279,10 @@ class Service:
             self.publisher.start()
         # The reference is re-read on every reload (a new one may have been recorded).
         self.analyzer = None
-        self._ready_sent = False
         log.info("configuration reloaded from %s", self.config_path)
+        if self._ready_sent:
+            # the reload is done (systemctl reload returns); re-alignment shows in STATUS
+            self.notifier.ready("configuration reloaded; re-aligning")
 
     def stats(self, uptime_s: float) -> dict[str, Any]:
         """The stats message: health counters a user can alert on, plus the raw detail."""

@@ -1,0 +1,1 @@
+"""The daemon's edges: audio devices, MQTT, systemd, logging, and the loop that joins them."""
