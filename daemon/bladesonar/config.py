@@ -148,7 +148,7 @@ class SimSettings:
 
     scene: str = opt("scenes/paper-room.yaml", "scene file (relative to this config "
                      "file's folder unless absolute)")
-    schedule: str = opt("ccw:0.5:20", "rotation schedule as DIR:RATE_HZ:SECONDS,... "
+    schedule: str = opt("ccw:0.45:20", "rotation schedule as DIR:RATE_HZ:SECONDS,... "
                         "(DIR cw, ccw or stop); the last segment repeats")
     snr_db: float = opt(20.0, "fan-echo to noise power inside the range gate", lo=-30.0,
                         hi=120.0, unit="dB")
