@@ -65,6 +65,9 @@ class Service:
         self.max_seconds = max_seconds
         self.clock = clock
         self.counters = Counters()
+        #: audio counters of device sessions already closed (reopen, reload), so the
+        #: published totals never go backwards
+        self._audio_closed: dict[str, int] = {}
         self._stop = threading.Event()
         self._reload = threading.Event()
         self.publisher: Any = None
@@ -254,6 +257,12 @@ class Service:
     def _close_audio(self) -> None:
         if self.audio is not None:
             try:
+                for k, v in self.audio.stats().items():
+                    if isinstance(v, int):
+                        self._audio_closed[k] = self._audio_closed.get(k, 0) + v
+            except Exception:  # noqa: BLE001 - counters must not block the close
+                log.exception("reading the audio counters failed")
+            try:
                 self.audio.stop()
             except Exception:  # noqa: BLE001 - closing must not mask the real error
                 log.exception("closing the audio path failed")
@@ -286,7 +295,10 @@ class Service:
 
     def stats(self, uptime_s: float) -> dict[str, Any]:
         """The stats message: health counters a user can alert on, plus the raw detail."""
-        audio = dict(self.audio.stats()) if self.audio is not None else {}
+        audio = dict(self._audio_closed)
+        if self.audio is not None:
+            for k, v in self.audio.stats().items():
+                audio[k] = audio.get(k, 0) + v if isinstance(v, int) else v
         pub = dict(self.publisher.counters()) if self.publisher is not None else {}
         an = dict(self.analyzer.stats()) if self.analyzer is not None else {}
         t = os.times()
