@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -134,9 +136,86 @@ def test_recording_shorter_than_the_static_window_is_analysed(scene, reference, 
     # fewer than analysis.min_pulses is still refused, naming the count
     short = config.replace(cfg, analysis={"min_pulses": 67})
     with pytest.raises(InputError,
-                       match=r"only 66 usable pulses \(of 67\); at least 67 are needed: record "
-                             r"longer$"):
+                       match=r"only 66 usable pulses \(of 67\) in 2\.00 s; at least 67 are "
+                             r"needed: record at least 2\.1 s$"):
         analyze(x, short, reference(4))
+
+
+def _true_rate_hz(truth) -> float:
+    """Signed rotation rate (+ ccw) over the simulated pulses, from the truth records."""
+    return float(np.mean([p["rate_hz"] for p in truth["pulses"]]))
+
+
+@pytest.mark.parametrize("seed", [2, 8])
+def test_three_second_probe_gets_direction_and_rate(scene, reference, seed):
+    """A 3 s probe (cw 0.4 Hz) holds fewer pulses than the static window: the analyzer is
+    primed from what it holds, the answer is the simulated one within 3 %, and the end of
+    the file, wherever it cuts the last PRI, is neither a drop-out nor a warning."""
+    cfg = _cfg()
+    ref = reference(4)
+    x, truth = _sim(scene, 3.0, "cw:0.4:3", seed=seed)
+    want_rel = _true_rate_hz(truth) / 0.5            # the reference turns ccw at 0.5 Hz
+    assert want_rel == pytest.approx(-0.8)
+    static_pulses = round(cfg.analysis.static_window_s * cfg.prf_hz)
+    pri = cfg.waveform.pri_samples
+    for cut in range(0, pri, pri // 4):              # the file ends anywhere in a PRI
+        s, _ = analyze(x[:len(x) - cut], cfg, ref)
+        assert cfg.analysis.min_pulses <= s["used_pulses"] < static_pulses, s
+        assert s["dropped_pulses"] == 0, (cut, s)
+        assert not any("dropped" in w for w in s["warnings"]), (cut, s)
+        assert (s["direction"], s["rotation"]) == ("reversed", "cw"), (cut, s)
+        assert abs(s["relative_rate"] - want_rel) < 0.03 * abs(want_rel), (cut, s)
+        assert abs(s["rate_hz"] - abs(_true_rate_hz(truth))) < 0.03 * 0.4, (cut, s)
+        assert s["confidence"] >= cfg.tracking.min_confidence, (cut, s)
+        assert s["window_s"] <= 3.0
+
+
+def test_short_probe_still_reports_a_real_dropout(scene, reference):
+    """A capture drop-out inside a 3 s probe is counted and warned about, unlike the end."""
+    x, truth = _sim(scene, 3.0, "cw:0.4:3", seed=8, dropouts=[(44100, 300)])
+    runs = truth["meta"]["dropouts"]["runs"]
+    assert len(runs) == 1
+    s, _ = analyze(x, _cfg(), reference(4))
+    # one 300-sample gap spoils the pulse it falls in, and the one after it when it
+    # reaches that pulse's direct coupling
+    assert 1 <= s["dropped_pulses"] <= 2 * len(runs), s
+    assert f"{s['dropped_pulses']} pulses dropped or corrupt (skipped)" in s["warnings"], s
+    assert s["direction"] == "reversed", s
+    assert abs(s["relative_rate"] + 0.8) < 0.03 * 0.8, s
+
+
+def test_too_short_recordings_are_refused_with_pulses_and_seconds(scene, reference, tmp_path):
+    """Below analysis.min_pulses (64 = 1.9 s) the refusal names the pulses and the
+    shortest length that works (2.0 s); a recording of exactly that length is analysed."""
+    cfg = _cfg()
+    ref = reference(4)
+    pri, fs = cfg.waveform.pri_samples, cfg.audio.sample_rate
+    x, _ = _sim(scene, 1.5, "cw:0.4:1.5", seed=2)
+    with pytest.raises(InputError, match=rf"holds {len(x) // pri} pulses \(1\.50 s at {pri} "
+                                         r"samples per pulse\) but at least 64 usable pulses "
+                                         r"are needed: record at least 2\.0 s$"):
+        analyze(x, cfg, ref)
+    x, _ = _sim(scene, 1.9, "cw:0.4:1.9", seed=2)
+    with pytest.raises(InputError, match=r"only 6\d usable pulses \(of 6\d\) in 1\.90 s; at "
+                                         r"least 64 are needed: record at least 2\.0 s$"):
+        analyze(x, cfg, ref)
+    for offset in (0, pri - 1):                      # wherever the first pulse falls
+        x2, _ = _sim(scene, 2.0, "cw:0.4:2", seed=2, start_offset=offset)
+        s, _ = analyze(x2, cfg, ref)
+        assert s["used_pulses"] >= cfg.analysis.min_pulses and s["dropped_pulses"] == 0, s
+    # the command line: exit code 2 and that one line on stderr
+    from bladesonar.io.reference import save_reference
+    from bladesonar.io.wav import WavWriter
+    wav = tmp_path / "short.wav"
+    with WavWriter(wav, fs) as w:
+        w.write(x)
+    save_reference(ref, tmp_path / "ref.npz")
+    r = subprocess.run([sys.executable, "-m", "bladesonar", "analyze", "--reference",
+                        str(tmp_path / "ref.npz"), str(wav)], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2 and r.stdout == "", r
+    assert r.stderr.count("\n") == 1 and "usable pulses" in r.stderr, r.stderr
+    assert "record at least 2.0 s" in r.stderr, r.stderr
 
 
 def test_end_of_the_pulse_train_is_not_counted_as_dropped(scene, reference):

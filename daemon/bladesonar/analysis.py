@@ -27,7 +27,7 @@ from .dsp.decide import DecideSettings, Decision, MotionMeter, decide
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
 from .dsp.period import estimate_period
 from .dsp.pulses import OK, STATUS_NAMES, WARMUP, AlignedPulses, PulseAligner, align, \
-    check_recording, count_dropped
+    check_recording, count_dropped, too_few_pulses
 from .dsp.rangedoppler import range_doppler
 from .dsp.tracking import Tracker, TrackerSettings
 from .errors import EstimationError, InputError, ReferenceFileError
@@ -156,13 +156,14 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     fs, pri = cfg.audio.sample_rate, cfg.waveform.pri_samples
     prf = cfg.prf_hz
     warnings = check_recording(x, pri=pri, min_pulses=a.min_pulses,
-                               max_clip_fraction=a.max_clip_fraction)
+                               max_clip_fraction=a.max_clip_fraction, sample_rate=fs)
     full_gate = Gate(0, max_gate_stop(pri), float(fs), cfg.scene.speed_of_sound)
     full = align(x, pri, full_gate)
     v = full.valid
     if v.sum() < a.min_pulses:
-        raise InputError(f"only {int(v.sum())} usable pulses (of {len(full)}); at least "
-                         f"{a.min_pulses} are needed: record longer or fix the drop-outs")
+        raise too_few_pulses(int(v.sum()), len(full), len(x), pri=pri, sample_rate=fs,
+                             min_pulses=a.min_pulses,
+                             dropped=count_dropped(full.status, ended=True))
     gate, target = _gate_for_reference(cfg, full, prf)
     pulses = full.pulses[:, gate.start:gate.stop]
     k = full.index[v]
@@ -394,7 +395,8 @@ def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
     a = cfg.analysis
     pri = cfg.waveform.pri_samples
     warnings = check_recording(x, pri=pri, min_pulses=a.min_pulses,
-                               max_clip_fraction=a.max_clip_fraction)
+                               max_clip_fraction=a.max_clip_fraction,
+                               sample_rate=cfg.audio.sample_rate)
     # stream the recording through the same stages the daemon runs, in blocks of pulses
     # (bounded memory); the static estimate is primed from the first window of pulses
     w = int(max(round(a.static_window_s * cfg.prf_hz), 1))
@@ -428,9 +430,9 @@ def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
     # the end of the pulse train is not a drop-out (the pulses there are not used either)
     dropped = count_dropped(np.concatenate(status) if status else np.zeros(0), ended=True)
     if an is None or n_valid < a.min_pulses:
-        fix = "record longer" + (" or fix the drop-outs" if dropped else "")
-        raise InputError(f"only {n_valid} usable pulses (of {n_pulses}); at least "
-                         f"{a.min_pulses} are needed: {fix}")
+        raise too_few_pulses(n_valid, n_pulses, len(x), pri=pri,
+                             sample_rate=cfg.audio.sample_rate, min_pulses=a.min_pulses,
+                             dropped=dropped)
     d = an.decision()
     if dropped:
         warnings.append(f"{dropped} pulses dropped or corrupt (skipped)")

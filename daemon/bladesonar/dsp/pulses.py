@@ -468,8 +468,33 @@ def align(x: np.ndarray, pri: int, gate: Gate, **kwargs) -> AlignedPulses:
     return AlignedPulses.concat([a.push(x), a.flush()], gate.length)
 
 
+def min_recording_s(pri: int, sample_rate: float, min_pulses: int) -> float:
+    """Shortest recording that yields ``min_pulses`` usable pulses, seconds, rounded up to
+    0.1 s: the first pulse is warm-up and the last one's window may be cut by the end.
+
+    Used in refusals, so that a user reads how long to record rather than a pulse count.
+    """
+    if not sample_rate > 0:
+        return float("nan")
+    return math.ceil((int(min_pulses) + 2) * int(pri) / float(sample_rate) * 10.0 - 1e-9) / 10.0
+
+
+def too_few_pulses(usable: int, total: int, n_samples: int, *, pri: int, sample_rate: float,
+                   min_pulses: int, dropped: int = 0) -> InputError:
+    """The refusal for a recording with fewer than ``min_pulses`` usable pulses: names
+    the counts, its length and how long to record (or the drop-outs, when there were)."""
+    secs = min_recording_s(pri, sample_rate, min_pulses)
+    dur = n_samples / sample_rate if sample_rate > 0 else float("nan")
+    fix = f"record at least {secs:.1f} s"
+    if dropped:
+        fix += f" or fix the drop-outs ({dropped} pulses dropped)"
+    return InputError(f"only {usable} usable pulses (of {total}) in {dur:.2f} s; at least "
+                      f"{min_pulses} are needed: {fix}")
+
+
 def check_recording(x: np.ndarray, *, pri: int, min_pulses: int, clip_level: float =
-                    32767.0 / 32768.0, max_clip_fraction: float = 0.01) -> list[str]:
+                    32767.0 / 32768.0, max_clip_fraction: float = 0.01,
+                    sample_rate: float | None = None) -> list[str]:
     """Refuse recordings that cannot be analysed; return warnings for doubtful ones.
 
     Parameters
@@ -482,6 +507,9 @@ def check_recording(x: np.ndarray, *, pri: int, min_pulses: int, clip_level: flo
         Fewest whole pulses the caller needs.
     max_clip_fraction : float
         Above this fraction of clipped samples the recording is refused.
+    sample_rate : float, optional
+        Samples per second; when given, a too-short recording is refused with its length
+        and the shortest length that would do, in seconds.
 
     Raises
     ------
@@ -501,6 +529,12 @@ def check_recording(x: np.ndarray, *, pri: int, min_pulses: int, clip_level: flo
                          "the microphone is not muted and the right capture device is used")
     n_pulses = len(x) // pri
     if n_pulses < min_pulses:
+        if sample_rate is not None and sample_rate > 0:
+            secs = min_recording_s(pri, sample_rate, min_pulses)
+            raise InputError(f"the recording holds {n_pulses} pulses "
+                             f"({len(x) / sample_rate:.2f} s at {pri} samples per pulse) but "
+                             f"at least {min_pulses} usable pulses are needed: record at "
+                             f"least {secs:.1f} s")
         raise InputError(f"the recording holds {n_pulses} pulses ({len(x)} samples at "
                          f"{pri} samples per pulse) but at least {min_pulses} are needed; "
                          "record longer")
