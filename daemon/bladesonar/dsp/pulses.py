@@ -21,6 +21,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+from scipy.special import i0
 
 from ..errors import InputError
 from .gate import Gate
@@ -28,6 +30,7 @@ from .gate import Gate
 #: Half width (taps) of the windowed-sinc fractional-delay kernel.
 KERNEL_HALF = 16
 _KAISER_BETA = 8.0
+_I0_BETA = float(i0(_KAISER_BETA))
 #: Fine grid step used to find the sub-sample peak of the direct coupling, samples.
 _EDGE_GRID = 1.0 / 32.0
 
@@ -49,8 +52,8 @@ def _kernel(t: np.ndarray) -> np.ndarray:
     w = np.zeros_like(t, dtype=np.float64)
     inside = np.abs(t) < KERNEL_HALF
     u = t[inside] / KERNEL_HALF
-    w[inside] = np.sinc(t[inside]) * np.i0(_KAISER_BETA * np.sqrt(1.0 - u * u)) / np.i0(
-        _KAISER_BETA)
+    # scipy's i0 is a ufunc, several times faster per pulse than numpy's piecewise i0
+    w[inside] = np.sinc(t[inside]) * i0(_KAISER_BETA * np.sqrt(1.0 - u * u)) / _I0_BETA
     return w
 
 
@@ -398,9 +401,9 @@ class PulseAligner:
         status[(status == OK) & (index < self.warmup)] = WARMUP
         taps = fractional_taps(frac)
         raw = np.where(np.isfinite(raw), raw, 0.0)
-        out = np.zeros((n, L))
-        for m in range(2 * KERNEL_HALF):
-            out += taps[:, m:m + 1] * raw[:, m:m + L]
+        # out[k, i] = sum_m taps[k, m] raw[k, i + m]: one contraction over strided windows
+        out = np.einsum("kim,km->ki", sliding_window_view(raw, 2 * KERNEL_HALF, axis=1)[:, :L],
+                        taps)
         out[status != OK] = 0.0
         return AlignedPulses(out, e, index, status)
 
