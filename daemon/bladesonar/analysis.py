@@ -3,7 +3,8 @@
 build_reference:  align -> gate (given, or from the target's doppler energy) -> period
                   (blade-pass rate, refined) -> fold all periods into an angular table.
 analyze:          align -> remove the running static part -> envelope features -> match
-                  -> Kalman track -> motion evidence -> decision.
+                  -> Kalman track (checked against its aliases when the rate is near p/q
+                  blade period per pulse) -> motion evidence -> decision.
 
 Per pulse, analysis costs an alignment of the gated window, one envelope (FFT of the gate),
 one row of a matrix product against the table, a 2x2 Kalman step and ``max_lag`` vector
@@ -22,6 +23,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from .config import Config
+from .dsp import aliasing
 from .dsp import fingerprint as fp
 from .dsp.decide import DecideSettings, Decision, MotionMeter, decide
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
@@ -178,6 +180,16 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
                           max_cycles_per_pulse=a.max_phase_per_pulse,
                           line_snr_min=a.line_snr_min)
     r = est.cycles_per_pulse
+    span = int(k[-1] - k[0]) + 1 if len(k) else 0
+    folded = aliasing.folded_angles(r, span)
+    if folded is not None:
+        p, q = folded.numerator, folded.denominator
+        warnings.append(
+            f"the reference turns {r:.6f} blade periods per pulse, within "
+            f"{abs(r - p / q):.1e} of {p}/{q}: its {span} pulses show only {q} blade angles, "
+            f"so the table holds only those (interpolated between) and the rate itself may "
+            f"be an alias (another m/{q}; the record cannot tell the order of the angles); "
+            f"record the reference at another fan speed, a few percent faster or slower")
     bins = fp.auto_bins(r, a.phase_bins)
     phases = fp.fold_phases(k, r)
     table, weight = fp.build_table(feats, phases, bins)
@@ -224,7 +236,7 @@ def tracker_settings(cfg: Config, ref: Reference) -> TrackerSettings:
 def decide_settings(cfg: Config) -> DecideSettings:
     t = cfg.tracking
     return DecideSettings(motion_threshold=t.motion_threshold, min_confidence=t.min_confidence,
-                          slew_limit=t.slew_limit)
+                          slew_limit=t.slew_limit, alias_margin=aliasing.MARGIN)
 
 
 class StaticRemover:
@@ -257,7 +269,8 @@ class PulseAnalyzer:
     """Streaming analysis of aligned pulses (what the daemon runs pulse by pulse).
 
     Feed blocks of :class:`AlignedPulses` to :meth:`process`; each returns per-pulse
-    rows; :meth:`decision` gives the answer for the last ``window`` pulses.
+    rows; :meth:`decision` gives the answer for the last ``window`` pulses. The last
+    window's features are kept for the alias check (:mod:`dsp.aliasing`).
     """
 
     cfg: Config
@@ -271,6 +284,17 @@ class PulseAnalyzer:
     _noise: float = float("nan")                  # running raw half lag-1 difference energy
     dropped: int = 0
     seen: int = 0
+    # alias check (dsp/aliasing.py): the window's features and pulse numbers (rings), the
+    # last verdict, and when / at which tracked rate it was made
+    _ring_f: np.ndarray = field(init=False, repr=False)
+    _ring_k: np.ndarray = field(init=False, repr=False)
+    _ring_n: int = 0
+    alias: aliasing.AliasVerdict | None = None
+    alias_note: str = ""
+    _alias_at: int = -(10 ** 9)
+    alias_moves: int = 0                          # times the track was moved off an alias
+    last_move: tuple[float, float, int] | None = None   # (from, to relative rate, pulse)
+    _alias_rate: float = float("nan")
 
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
@@ -282,6 +306,10 @@ class PulseAnalyzer:
         self.motion = MotionMeter(self.ref.table.shape[1], self.window,
                                   max_lag=max(4, min(lags, self.window // 2)))
         self._tsq = (self.ref.table ** 2).sum(axis=1)
+        self._ring_f = np.zeros((self.window, self.ref.table.shape[1]))
+        self._ring_k = np.zeros(self.window, dtype=np.int64)
+        self._alias_every = max(self.window // 4, 8)
+        self._fine = aliasing.fine_table(self.ref.table)
 
     def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict]:
         """Match, track and measure motion for a block of pulses; optional per-pulse rows."""
@@ -304,6 +332,11 @@ class PulseAnalyzer:
             st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
             if rows:
                 self.motion.update(feats[i])
+            j = self._ring_n % self.window
+            self._ring_f[j] = feats[i]
+            self._ring_k[j] = int(k)
+            self._ring_n += 1
+            self._check_aliases()
             if self._prev is not None:
                 dd = xv[i] - self._prev
                 e = 0.5 * float(dd @ dd)
@@ -325,6 +358,75 @@ class PulseAnalyzer:
                 row.update(d.as_dict())
                 out.append(row)
         return out
+
+    def _check_aliases(self) -> None:
+        """Every quarter window (every 8 pulses soon after a lock), or when the track
+        jumps to another rate: is the tracked rate near p/q cycles per pulse, and if so,
+        which of its aliases fits the reference table best? A clear winner other than the
+        track moves the track; no clear winner makes the decision unknown."""
+        tr = self.tracker
+        if not tr.locked:
+            self.alias, self.alias_note = None, ""
+            self._alias_rate = float("nan")
+            return
+        rate = float(tr.x[1])
+        jumped = not abs(rate - self._alias_rate) <= 0.25 / aliasing.MAX_Q
+        # soon after a lock the window since it is short and its verdict young: look again
+        # every 8 pulses until it spans half the window
+        young = tr.last_k is not None and tr.start_k is not None and \
+            tr.last_k - tr.start_k < self.window // 2
+        every = 8 if young else self._alias_every
+        if not jumped and self._ring_n - self._alias_at < every:
+            return
+        self._alias_at = self._ring_n
+        self._alias_rate = rate
+        self.alias, self.alias_note = None, ""
+        n = min(self._ring_n, self.window)
+        idx = (self._ring_n - n + np.arange(n)) % self.window
+        k = self._ring_k[idx]
+        keep = k >= (tr.start_k if tr.start_k is not None else k[0])
+        idx, k = idx[keep], k[keep]
+        if len(k) < 2:
+            return
+        sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
+        fracs = aliasing.near_fractions(rate, span=int(k[-1] - k[0]) + 1, rate_std=sd)
+        if not fracs:
+            return
+        if fracs[0] == 0:
+            # a track standing still: check it against every p/q only while the fan
+            # moves (the check then has the most candidates)
+            motion, _ = self.motion.statistic()
+            if motion < self.cfg.tracking.motion_threshold:
+                return
+        v = aliasing.check_aliases(
+            self._ring_f[idx], k, self._fine, rate, sd, max_rate=tr.settings.max_rate,
+            min_rate=self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit, fracs=fracs)
+        self.alias = v
+        if v is None:
+            return
+        r0 = self.ref.cycles_per_pulse
+        if v.frac == 0:
+            seen = ("the track stands still while the fan moves: it may be the alias of a "
+                    "rate near p/q blade period per pulse, where the pulses see only q "
+                    "blade angles")
+        else:
+            seen = (f"rate near {v.frac.numerator}/{v.frac.denominator} blade period per "
+                    f"pulse: the pulses see only {v.frac.denominator} blade angles")
+        if v.status == "resolved":
+            tr.relock(v.best_rate, v.best_phase, int(k[-1]))
+            self._alias_rate = v.best_rate
+            self.alias_moves += 1
+            self.last_move = (v.rate / r0, v.best_rate / r0, int(k[-1]))
+            self.alias_note = (f"{seen}; the track was on the alias {v.rate / r0:+.3f} "
+                               f"(relative rate) and was moved to {v.best_rate / r0:+.3f}, "
+                               f"which fits the reference table better (cost gap "
+                               f"{v.gap:.2f})")
+        elif v.status == "ambiguous":
+            self.alias_note = (f"rate ambiguous: {seen}, and relative rates "
+                               f"{v.best_rate / r0:+.3f} and {v.runner_rate / r0:+.3f} fit "
+                               f"the reference table about equally (cost gap {v.gap:.2f} < "
+                               f"{aliasing.MARGIN:g}); another fan speed, or another "
+                               "waveform.pri_samples with a new reference, avoids it")
 
     def decision(self) -> Decision:
         """The answer for the last ``window`` pulses."""
@@ -350,6 +452,8 @@ class PulseAnalyzer:
                       ref_cycles_per_pulse=self.ref.cycles_per_pulse,
                       ref_rate_hz=float(self.ref.meta["rate_hz"]),
                       ref_direction=self.ref.meta.get("direction", "unknown"),
+                      alias_gap=self.alias.gap if locked and self.alias else math.inf,
+                      alias_note=self.alias_note if locked else "",
                       settings=decide_settings(self.cfg))
 
 
@@ -436,6 +540,12 @@ def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
     d = an.decision()
     if dropped:
         warnings.append(f"{dropped} pulses dropped or corrupt (skipped)")
+    if an.last_move is not None and not any("alias" in w for w in d.warnings):
+        a_, b_, k_ = an.last_move
+        warnings.append(f"at pulse {k_} the track was on the alias {a_:+.3f} (relative rate) "
+                        f"and was moved to {b_:+.3f}, which fits the reference table better "
+                        f"({an.alias_moves} move(s) in all; a rate near p/q blade period per "
+                        "pulse shows few blade angles)")
     warnings.extend(d.warnings)
     e = np.concatenate(edges)
     summary = d.as_dict()

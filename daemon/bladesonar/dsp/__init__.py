@@ -9,5 +9,6 @@ rangedoppler FFT along pulses (reference time and pictures only)
 period       blade-pass frequency estimate, refined well below one FFT bin
 fingerprint  angular table by folding, vectorised nearest-phase matching
 tracking     circular Kalman filter on (phase, phase rate)
+aliasing     rates near p/q cycles per pulse: which alias line fits the table best
 decide       direction, rate and confidence from the track and the motion evidence
 """

@@ -132,6 +132,7 @@ class DecideSettings:
     min_confidence: float = 0.5
     slew_limit: float = 4.0
     good_quality: float = 0.02
+    alias_margin: float = 0.1
 
 
 @dataclass
@@ -161,7 +162,8 @@ def _phi(x: float) -> float:
 
 def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quality: float,
            motion: float, scene: float, ref_cycles_per_pulse: float, ref_rate_hz: float,
-           ref_direction: str = "unknown",
+           ref_direction: str = "unknown", alias_gap: float = math.inf,
+           alias_note: str = "",
            settings: DecideSettings = DecideSettings()) -> Decision:
     """Direction and rate of one window.
 
@@ -182,6 +184,12 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         Reference blade phase per pulse and its rotation rate, Hz (> 0).
     ref_direction : {"cw", "ccw", "unknown"}
         The reference's own direction, for the absolute answer.
+    alias_gap, alias_note : float, str
+        From the alias check (:mod:`aliasing`) when the rate is near p/q cycles per pulse:
+        the relative cost gap between the best phase line and the next, and what it found.
+        Below ``alias_margin`` the rate is ambiguous (*unknown*, the note is the reason,
+        the confidence scaled below ``min_confidence``); a note on a trusted rate becomes
+        a warning (the track was moved off an alias).
     """
     s = settings
     warnings: list[str] = []
@@ -210,6 +218,13 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     rate_hz = abs(rel) * ref_rate_hz
     if not math.isfinite(motion):
         conf *= 0.5
+    if s.alias_margin > 0 and alias_gap < s.alias_margin:
+        # several alias rates fit about equally: the sign or the rate could be either
+        conf = min(conf, s.min_confidence) * max(alias_gap, 0.0) / s.alias_margin
+        return Decision("unknown", None, rel, rate_hz, rate_hz * 60.0, conf, alias_note,
+                        warnings)
+    if alias_note:
+        warnings.append(alias_note)
     if conf < s.min_confidence:
         return Decision("unknown", None, rel, rate_hz, rate_hz * 60.0, conf,
                         f"weak evidence (confidence {conf:.2f} < {s.min_confidence:g}; "

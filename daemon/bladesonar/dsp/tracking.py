@@ -203,6 +203,7 @@ class Tracker:
     outliers: int = 0
     updates: int = 0
     coherence: float = 0.0
+    start_k: int | None = None   # first pulse of the matches the current track began from
     _recent: deque = field(default_factory=deque)
 
     def __post_init__(self) -> None:
@@ -232,8 +233,18 @@ class Tracker:
         self.x = np.array([phase, rate])
         self.P = np.array([[4.0 * var / n, 0.0], [0.0, 12.0 * var / (n * span * span)]])
         self.last_k = int(k[-1])
+        self.start_k = int(k[0])
         self.outlier_run = 0
         return True
+
+    def relock(self, rate: float, phase: float, k: int) -> None:
+        """Move a locked track to another line (rate, phase at pulse ``k``), keeping its
+        covariance: an alias check found the line the matches alone could not single out."""
+        if self.x is None:
+            return
+        self.x = np.array([float(phase) % 1.0, float(rate)])
+        self.last_k = int(k)
+        self.outlier_run = 0
 
     def update(self, k: int, z: float, quality: float) -> TrackState:
         """Fold in pulse ``k`` matched at phase ``z`` (cycles) with quality in [0, 1]."""

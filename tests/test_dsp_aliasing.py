@@ -1,0 +1,126 @@
+"""Rate aliases near p/q cycles per pulse: which rates count as commensurate, and the line
+fit against the table that tells an alias from the true rate (synthetic tables, known rate)."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import numpy as np
+import pytest
+
+from bladesonar.dsp import aliasing
+from bladesonar.dsp.decide import decide
+from bladesonar.dsp.fingerprint import match
+
+FS, PRI, K = 44100, 1297, 4          # the default config: PRF 34.0 Hz, 4 blades
+B, L = 40, 64
+
+
+def _cpp(rate_hz: float) -> float:
+    """Blade periods per pulse of a fan turning at ``rate_hz``."""
+    return K * rate_hz * PRI / FS
+
+
+def test_which_rates_are_commensurate():
+    # 0.5 Hz is 0.05882 blade period per pulse, 2.6e-6 from 1/17: over a 5 s window
+    # (170 pulses) the pulses see 17 angles
+    assert aliasing.near_fraction(_cpp(0.5), span=170) == Fraction(1, 17)
+    # 0.45 Hz (0.05294) is 3e-4 from 1/19: the angles drift through the gaps
+    assert aliasing.near_fraction(_cpp(0.45), span=170) is None
+    # the tracked rate's uncertainty widens the test
+    assert aliasing.near_fraction(_cpp(0.45), span=170, rate_std=2e-4) == Fraction(1, 19)
+    # a track standing still may be the alias of any p/q
+    assert aliasing.near_fraction(3e-4, span=170) == 0
+    assert aliasing.near_fraction(3e-4, span=170, zero=False) is None
+    # a reference of 406 pulses: 1/8 exactly, 1e-5 off (drifts 0.004 < 1/16), 2e-3 off
+    assert aliasing.folded_angles(0.125, 406) == Fraction(1, 8)
+    assert aliasing.folded_angles(0.125 + 1e-5, 406) == Fraction(1, 8)
+    assert aliasing.folded_angles(0.125 + 2e-3, 406) is None
+    assert aliasing.folded_angles(float("nan"), 406) is None
+
+
+def _table(visible: float | None) -> np.ndarray:
+    """Echo pattern by blade phase: a bump whose range follows the phase; with
+    ``visible`` it is seen only within that distance of phase 0.5 (the paper room's fan
+    shows its blades over a narrow range of angles), else at every phase."""
+    ph = np.arange(B) / B
+    pos = 8.0 + 48.0 * ph
+    amp = np.ones(B) if visible is None else np.exp(-((ph - 0.5) / visible) ** 2)
+    x = np.arange(L)
+    t = amp[:, None] * np.exp(-0.5 * ((x[None, :] - pos[:, None]) / 2.0) ** 2)
+    return t - t.mean(axis=1, keepdims=True)
+
+
+def _pulses(table: np.ndarray, rate: float, n: int = 170, phase0: float = 0.5,
+            noise: float = 0.02, seed: int = 0):
+    from bladesonar.dsp.fingerprint import table_lookup
+    k = np.arange(n)
+    f = table_lookup(table, phase0 + rate * k)
+    return k, f + noise * np.random.default_rng(seed).standard_normal(f.shape)
+
+
+def test_one_visible_angle_in_five_is_ambiguous_not_a_confident_alias():
+    """At 1/5 period per pulse only the angle at 0.5 shows the blade: the matches repeat
+    every 5 pulses and circular regression finds +1/5 and -1/5 equally coherent. The line
+    fit cannot tell them apart either, and says so."""
+    table = _table(visible=0.05)
+    k, f = _pulses(table, 0.2)
+    m = match(f, table)
+    u = m.quality * np.exp(2j * np.pi * m.phase)
+    coh = {w: abs(np.sum(u * np.exp(-2j * np.pi * w * k))) / m.quality.sum()
+           for w in (0.2, -0.2)}
+    assert coh[0.2] > 0.9 and abs(coh[0.2] - coh[-0.2]) < 0.05, coh
+    fine = aliasing.fine_table(table)
+    for tracked in (0.2, -0.2):
+        v = aliasing.check_aliases(f, k, fine, tracked, 1e-4, max_rate=0.45, min_rate=0.01)
+        assert v is not None and v.frac.denominator == 5
+        assert v.status == "ambiguous" and v.gap < aliasing.MARGIN, v
+    # ... and the decision is then unknown, with the reason
+    d = decide(rate=-0.2, rate_std=1e-4, locked=True, accepted=1.0, quality=0.5, motion=3.0,
+               scene=100.0, ref_cycles_per_pulse=0.05, ref_rate_hz=0.5, ref_direction="ccw",
+               alias_gap=v.gap, alias_note="rate ambiguous: test")
+    assert d.direction == "unknown" and d.reason == "rate ambiguous: test"
+    assert d.confidence < 0.5 and d.relative_rate == pytest.approx(-4.0)
+
+
+@pytest.mark.parametrize("true_rate", [0.2, -0.125, 1 / 17])
+def test_a_visible_pattern_resolves_the_alias(true_rate):
+    """When the pattern changes over every angle, the line fit picks the true rate from
+    any of its aliases (here from the mirror and from a shifted alias)."""
+    table = _table(visible=None)
+    k, f = _pulses(table, true_rate)
+    fine = aliasing.fine_table(table)
+    q = Fraction(true_rate).limit_denominator(24).denominator
+    for tracked in (true_rate, -true_rate, true_rate + 2.0 / q):
+        if abs(tracked) > 0.45:
+            continue
+        v = aliasing.check_aliases(f, k, fine, tracked, 1e-4, max_rate=0.45, min_rate=0.01)
+        assert v is not None, tracked
+        assert v.best_rate == pytest.approx(true_rate, abs=1e-9), (tracked, v)
+        assert v.status == ("clear" if tracked == true_rate else "resolved"), (tracked, v)
+        assert v.gap >= aliasing.MARGIN
+        # the best line's phase at the last pulse is the true one
+        want = (0.5 + true_rate * k[-1]) % 1.0
+        assert abs((v.best_phase - want + 0.5) % 1.0 - 0.5) < 1.0 / (2 * len(fine[0])) + 1e-9
+
+
+def test_rates_far_from_small_fractions_are_not_checked():
+    table = _table(visible=None)
+    k, f = _pulses(table, 0.0529)                # the 3-D sample's rate: not near p/q
+    v = aliasing.check_aliases(f, k, aliasing.fine_table(table), 0.0529, 0.0,
+                               max_rate=0.45, min_rate=0.01)
+    assert v is None
+    # too short a window to tell
+    v = aliasing.check_aliases(f[:10], k[:10], aliasing.fine_table(table), 0.2, 0.0,
+                               max_rate=0.45, min_rate=0.01)
+    assert v is None
+
+
+def test_a_trusted_rate_keeps_its_answer_and_the_note_becomes_a_warning():
+    common = dict(rate=-0.2, rate_std=1e-3, locked=True, accepted=1.0, quality=0.5,
+                  motion=3.0, scene=100.0, ref_cycles_per_pulse=0.05, ref_rate_hz=0.5,
+                  ref_direction="ccw")
+    plain = decide(**common)
+    d = decide(**common, alias_gap=0.4, alias_note="moved off an alias")
+    assert (d.direction, d.rotation, d.confidence) == ("reversed", "cw", plain.confidence)
+    assert d.warnings == ["moved off an alias"] and not plain.warnings
