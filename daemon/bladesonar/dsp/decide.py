@@ -105,8 +105,9 @@ class MotionMeter:
         order = np.argsort(np.arange(n) if self._n <= self.window else
                            (np.arange(n) - self._n) % self.window)
         d = d[order]
-        for m in range(1, self.max_lag + 1):
-            dm[m - 1] = d[m:, m - 1].mean()
+        # mean over the pulses that had m predecessors in the window: rows m.. of column m
+        valid = np.arange(n)[:, None] >= np.arange(1, self.max_lag + 1)[None, :]
+        dm[:] = np.where(valid, d, 0.0).sum(axis=0) / valid.sum(axis=0)
         noise = float(dm.min())
         mean = self._s[:n].mean(axis=0)
         var = float(self._e[:n].mean() - mean @ mean)
