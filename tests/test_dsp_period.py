@@ -79,3 +79,27 @@ def test_range_doppler_puts_a_modulated_sample_at_its_doppler_and_delay():
     i, j = np.unravel_index(np.argmax(p), p.shape)
     assert j == 40 and abs(abs(f[i]) - 3.0) <= prf / n
     assert f[len(f) // 2] == 0.0 and p[len(f) // 2, 40] < 1e-6 * p.max()  # static removed
+
+
+
+def test_commensurate_reference_is_right_or_refused_naming_the_fraction(repo_root, tmp_path):
+    # 0.5 Hz, 4 blades, PRF 34.0: exactly 1/17 blade period per pulse, 8 s through the
+    # daemon's sim backend. The pulses see only 17 angles and every m/17 fits them; with
+    # this seed the search says 7/17 = 0.41, beyond the aliasing guard. The refusal must
+    # then name the fraction and the fix, not only the aliasing limit; a success (should
+    # the search improve) must have the true rate.
+    import json
+    import subprocess
+    import sys
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"audio:\n  backend: sim\nsim:\n  scene: {repo_root}/config/scenes/"
+                   f"paper-room.yaml\n  schedule: ccw:0.5:20\n  realtime: false\n"
+                   f"daemon:\n  state_dir: {tmp_path}\n")
+    r = subprocess.run([sys.executable, "-m", "bladesonar", "reference", "--live", "--seconds",
+                        "8", "--direction", "ccw", "--config", str(cfg)],
+                       capture_output=True, text=True, timeout=120)
+    if r.returncode == 0:
+        assert json.loads(r.stdout)["rate_hz"] == pytest.approx(0.5, rel=0.01)
+    else:
+        assert r.returncode == 2 and "Traceback" not in r.stderr
+        assert "/17 cycle per pulse" in r.stderr and "different fan speed" in r.stderr

@@ -289,11 +289,17 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
                 r0, climbed = rm, True
                 break
     if r0 > max_cycles_per_pulse:
+        from .aliasing import folded_angles
+        frac = folded_angles(r0, int(span))
+        also = (f" Or, if the fan turned slower: {r0:.3f} is {frac} cycle per pulse, and a "
+                f"record at a rate near p/q sees only q={frac.denominator} angles, so its "
+                "period may be any m/q; record the reference at a slightly different fan "
+                "speed" if frac is not None else "")
         raise EstimationError(
             f"the blade phase advances {r0:.2f} cycles per pulse (limit "
             f"{max_cycles_per_pulse:g}): near 1/2 the rate is aliased and the direction "
             "ambiguous. The fan must turn slower than PRF/(2K), or raise the PRF "
-            "(smaller waveform.pri_samples)")
+            f"(smaller waveform.pri_samples).{also}")
     span = float(k.max() - k.min() + 1)
     if r0 * span < min_periods:
         raise EstimationError(
