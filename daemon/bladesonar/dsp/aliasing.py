@@ -28,6 +28,7 @@ from fractions import Fraction
 from functools import lru_cache
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from .fingerprint import table_lookup
 
@@ -137,14 +138,17 @@ def line_costs(features: np.ndarray, k: np.ndarray, fine: tuple[np.ndarray, np.n
     t, tsq = fine
     M = len(t)
     d = (f * f).sum(axis=1)[:, None] - 2.0 * (f @ t.T) + tsq[None, :]
-    rows = np.arange(len(f))[:, None]
-    cols = np.arange(M)[None, :]
+    # row k of the line at rate w is d[k] rotated by s_k = round(w k M): a contiguous window
+    # of the doubled row, so each rate gathers n slices instead of n * M single elements
+    win = sliding_window_view(np.concatenate([d, d], axis=1), M, axis=1)   # (n, M + 1, M)
+    rows = np.arange(len(f))
     n = max(len(f), 1)
+    rates = np.asarray(rates, dtype=np.float64)
+    shifts = np.mod(np.round(rates[:, None] * kk[None, :] * M).astype(np.int64), M)
     cost = np.empty(len(rates))
     phase = np.empty(len(rates))
-    for i, w in enumerate(np.asarray(rates, dtype=np.float64)):
-        s = np.round(w * kk * M).astype(np.int64)
-        c = d[rows, (cols + s[:, None]) % M].sum(axis=0)
+    for i in range(len(rates)):
+        c = win[rows, shifts[i]].sum(axis=0)
         j = int(np.argmin(c))
         cost[i] = c[j] / n
         phase[i] = j / M
