@@ -286,9 +286,9 @@ class PulseAnalyzer:
     _noise: float = float("nan")                  # running raw half lag-1 difference energy
     dropped: int = 0
     seen: int = 0
-    # alias check (dsp/aliasing.py): the window's features and pulse numbers (rings), the
-    # last verdict, and when / at which tracked rate it was made
-    _ring_f: np.ndarray = field(init=False, repr=False)
+    # alias check (dsp/aliasing.py): the window's distances to the fine table and pulse
+    # numbers (rings), the last verdict, and when / at which tracked rate it was made
+    _ring_d: np.ndarray = field(init=False, repr=False)
     _ring_k: np.ndarray = field(init=False, repr=False)
     _ring_n: int = 0
     alias: aliasing.AliasVerdict | None = None
@@ -308,10 +308,10 @@ class PulseAnalyzer:
         self.motion = MotionMeter(self.ref.table.shape[1], self.window,
                                   max_lag=max(4, min(lags, self.window // 2)))
         self._tsq = (self.ref.table ** 2).sum(axis=1)
-        self._ring_f = np.zeros((self.window, self.ref.table.shape[1]))
+        self._fine = aliasing.fine_table(self.ref.table)
+        self._ring_d = np.zeros((self.window, len(self._fine[0])))
         self._ring_k = np.zeros(self.window, dtype=np.int64)
         self._alias_every = max(self.window // 4, 8)
-        self._fine = aliasing.fine_table(self.ref.table)
 
     def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict]:
         """Match, track and measure motion for a block of pulses; optional per-pulse rows."""
@@ -326,6 +326,7 @@ class PulseAnalyzer:
         feats = fp.envelope_features(res, np.zeros(res.shape[1]), kind=a.features,
                                      smooth=a.envelope_smooth)
         m = fp.match(feats, self.ref.table, self._tsq)
+        dist = aliasing.distances(feats, self._fine)
         if not rows:
             self.motion.update_block(feats)
         out = []
@@ -335,7 +336,7 @@ class PulseAnalyzer:
             if rows:
                 self.motion.update(feats[i])
             j = self._ring_n % self.window
-            self._ring_f[j] = feats[i]
+            self._ring_d[j] = dist[i]
             self._ring_k[j] = int(k)
             self._ring_n += 1
             self._check_aliases()
@@ -401,8 +402,9 @@ class PulseAnalyzer:
             if motion < self.cfg.tracking.motion_threshold:
                 return
         v = aliasing.check_aliases(
-            self._ring_f[idx], k, self._fine, rate, sd, max_rate=tr.settings.max_rate,
-            min_rate=self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit, fracs=fracs)
+            None, k, self._fine, rate, sd, max_rate=tr.settings.max_rate,
+            min_rate=self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit, fracs=fracs,
+            dist=self._ring_d[idx])
         self.alias = v
         if v is None:
             return

@@ -111,8 +111,18 @@ def fine_table(table: np.ndarray, steps_per_bin: int = FIT_STEPS_PER_BIN
     return t, (t * t).sum(axis=1)
 
 
-def line_costs(features: np.ndarray, k: np.ndarray, fine: tuple[np.ndarray, np.ndarray],
-               rates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def distances(features: np.ndarray, fine: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Squared distance of each feature vector (n, L) to each fine-table phase: (n, M).
+    A pulse's row never changes, so a streaming caller computes it once per pulse and
+    keeps it (the product dominates a check otherwise)."""
+    f = np.asarray(features, dtype=np.float64)
+    t, tsq = fine
+    return (f * f).sum(axis=1)[:, None] - 2.0 * (f @ t.T) + tsq[None, :]
+
+
+def line_costs(features: np.ndarray | None, k: np.ndarray, fine: tuple[np.ndarray, np.ndarray],
+               rates: np.ndarray, *, dist: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Best fit of phase lines ``phi0 + w k`` against the table, for each rate ``w``.
 
     Parameters
@@ -125,6 +135,8 @@ def line_costs(features: np.ndarray, k: np.ndarray, fine: tuple[np.ndarray, np.n
         :func:`fine_table` of the reference table.
     rates : ndarray, shape (m,)
         Cycles per pulse.
+    dist : ndarray, shape (n, M), optional
+        :func:`distances` of the features, if already known (``features`` is then unused).
 
     Returns
     -------
@@ -133,16 +145,14 @@ def line_costs(features: np.ndarray, k: np.ndarray, fine: tuple[np.ndarray, np.n
     phase : ndarray, shape (m,)
         That line's phase at the last pulse ``k[-1]``, cycles.
     """
-    f = np.asarray(features, dtype=np.float64)
+    d = distances(features, fine) if dist is None else np.asarray(dist, dtype=np.float64)
     kk = np.asarray(k, dtype=np.float64) - float(k[-1])
-    t, tsq = fine
-    M = len(t)
-    d = (f * f).sum(axis=1)[:, None] - 2.0 * (f @ t.T) + tsq[None, :]
+    M = len(fine[0])
     # row k of the line at rate w is d[k] rotated by s_k = round(w k M): a contiguous window
     # of the doubled row, so each rate gathers n slices instead of n * M single elements
     win = sliding_window_view(np.concatenate([d, d], axis=1), M, axis=1)   # (n, M + 1, M)
-    rows = np.arange(len(f))
-    n = max(len(f), 1)
+    rows = np.arange(len(d))
+    n = max(len(d), 1)
     rates = np.asarray(rates, dtype=np.float64)
     shifts = np.mod(np.round(rates[:, None] * kk[None, :] * M).astype(np.int64), M)
     cost = np.empty(len(rates))
@@ -185,10 +195,11 @@ class AliasVerdict:
     gap: float
 
 
-def check_aliases(features: np.ndarray, k: np.ndarray, fine: tuple[np.ndarray, np.ndarray],
-                  rate: float, rate_std: float, *, max_rate: float, min_rate: float,
-                  max_q: int = MAX_Q, margin: float = MARGIN,
-                  fracs: list[Fraction] | None = None) -> AliasVerdict | None:
+def check_aliases(features: np.ndarray | None, k: np.ndarray,
+                  fine: tuple[np.ndarray, np.ndarray], rate: float, rate_std: float, *,
+                  max_rate: float, min_rate: float, max_q: int = MAX_Q,
+                  margin: float = MARGIN, fracs: list[Fraction] | None = None,
+                  dist: np.ndarray | None = None) -> AliasVerdict | None:
     """Check a tracked rate against its aliases (``fine``: :func:`fine_table`); None when
     it is not near a p/q (q <= ``max_q``; ``fracs`` from :func:`near_fractions` if already
     known) or the window is too short to tell (fewer pulses than the fewest angles, or
@@ -204,7 +215,7 @@ def check_aliases(features: np.ndarray, k: np.ndarray, fine: tuple[np.ndarray, n
     rates = alias_rates(rate, fracs, max_rate=max_rate, min_rate=min_rate, max_q=max_q)
     if len(rates) < 2:
         return None
-    cost, phase = line_costs(features, k, fine, rates)
+    cost, phase = line_costs(features, k, fine, rates, dist=dist)
     order = np.argsort(cost, kind="stable")
     b, r = int(order[0]), int(order[1])
     c1, c2 = float(cost[b]), float(cost[r])
