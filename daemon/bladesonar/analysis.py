@@ -295,6 +295,7 @@ class PulseAnalyzer:
     alias_note: str = ""
     _alias_at: int = -(10 ** 9)
     alias_moves: int = 0                          # times the track was moved off an alias
+    _move_to: float = float("nan")                # a move seen once, awaiting confirmation
     last_move: tuple[float, float, int] | None = None   # (from, to relative rate, pulse)
     _alias_rate: float = float("nan")
 
@@ -416,6 +417,18 @@ class PulseAnalyzer:
         else:
             seen = (f"rate near {v.frac.numerator}/{v.frac.denominator} blade period per "
                     f"pulse: the pulses see only {v.frac.denominator} blade angles")
+        if v.status == "resolved" and not abs(v.best_rate - self._move_to) <= \
+                0.25 / aliasing.MAX_Q:
+            # one check alone never moves the track (a mirror line can win one window of
+            # a weakly asymmetric room): until the next check agrees, the answer is unknown
+            self._move_to = v.best_rate
+            self.alias = dataclasses.replace(v, status="ambiguous", gap=0.0)
+            self._alias_at = self._ring_n - self._alias_every + 8   # look again soon
+            self.alias_note = (f"rate ambiguous: {seen}; relative rate {v.best_rate / r0:+.3f} "
+                               f"fits the reference table better than the track's "
+                               f"{v.rate / r0:+.3f} (cost gap {v.gap:.2f}), to be confirmed")
+            return
+        self._move_to = float("nan")
         if v.status == "resolved":
             tr.relock(v.best_rate, v.best_phase, int(k[-1]))
             self._alias_rate = v.best_rate
