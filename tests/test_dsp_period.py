@@ -82,7 +82,7 @@ def test_range_doppler_puts_a_modulated_sample_at_its_doppler_and_delay():
 
 
 
-def test_commensurate_reference_is_right_or_refused_naming_the_fraction(repo_root, tmp_path):
+def test_commensurate_reference_is_right_or_refused_naming_the_fraction(tmp_path):
     # 0.5 Hz, 4 blades, PRF 34.0: exactly 1/17 blade period per pulse, 8 s through the
     # daemon's sim backend. The pulses see only 17 angles and every m/17 fits them; with
     # this seed the search says 7/17 = 0.41, beyond the aliasing guard. The refusal must
@@ -90,13 +90,12 @@ def test_commensurate_reference_is_right_or_refused_naming_the_fraction(repo_roo
     # the search improve) must have the true rate.
     import json
     import subprocess
-    import sys
-    cfg = tmp_path / "c.yaml"
-    cfg.write_text(f"audio:\n  backend: sim\nsim:\n  scene: {repo_root}/config/scenes/"
-                   f"paper-room.yaml\n  schedule: ccw:0.5:20\n  realtime: false\n"
-                   f"daemon:\n  state_dir: {tmp_path}\n")
-    r = subprocess.run([sys.executable, "-m", "bladesonar", "reference", "--live", "--seconds",
-                        "8", "--direction", "ccw", "--config", str(cfg)],
+
+    from loopback import bladesonar_cmd, write_config
+    cfg = write_config(tmp_path / "c.yaml", tmp_path, audio={"backend": "sim"},
+                       sim={"schedule": "ccw:0.5:20", "realtime": False})
+    r = subprocess.run(bladesonar_cmd("reference", "--live", "--seconds", "8", "--direction",
+                                      "ccw", "--config", str(cfg)),
                        capture_output=True, text=True, timeout=120)
     if r.returncode == 0:
         assert json.loads(r.stdout)["rate_hz"] == pytest.approx(0.5, rel=0.01)

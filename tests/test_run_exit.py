@@ -5,15 +5,14 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from loopback import ROOT, bladesonar_cmd, write_config
 
 
 def _run(cfg: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bladesonar", "run", "--config", str(cfg),
-                           "--seconds", "1"], capture_output=True, text=True, timeout=60)
+    return subprocess.run(bladesonar_cmd("run", "--config", str(cfg), "--seconds", "1"),
+                          capture_output=True, text=True, timeout=60)
 
 
 def test_invalid_config_exits_78_naming_the_key(tmp_path):
@@ -35,19 +34,15 @@ def test_unit_prevents_restart_on_exactly_that_status():
 def test_other_start_errors_exit_2_and_stay_restartable(tmp_path):
     # a reference exists (recorded through the sim backend), but the configured ALSA
     # device does not: retried by Restart=on-failure, e.g. a USB card plugged in later
-    scene = ROOT / "config" / "scenes" / "paper-room.yaml"
-    sim = tmp_path / "sim.yaml"
-    sim.write_text(f"audio:\n  backend: sim\nsim:\n  scene: {scene}\n  realtime: false\n"
-                   f"  schedule: ccw:0.45:20\n"
-                   f"daemon:\n  state_dir: {tmp_path}\n")
-    rec = subprocess.run([sys.executable, "-m", "bladesonar", "reference", "--live",
-                          "--seconds", "8", "--direction", "ccw", "--config", str(sim)],
+    sim = write_config(tmp_path / "sim.yaml", tmp_path, audio={"backend": "sim"},
+                       sim={"realtime": False, "schedule": "ccw:0.45:20"})
+    rec = subprocess.run(bladesonar_cmd("reference", "--live", "--seconds", "8",
+                                        "--direction", "ccw", "--config", str(sim)),
                          capture_output=True, text=True, timeout=120)
     assert rec.returncode == 0, rec.stderr
-    cfg = tmp_path / "alsa.yaml"
-    cfg.write_text(f"audio:\n  backend: alsa\n  playback_device: no_such_pcm_xyz\n"
-                   f"  capture_device: no_such_pcm_xyz\nsim:\n  scene: {scene}\n"
-                   f"daemon:\n  state_dir: {tmp_path}\n")
+    cfg = write_config(tmp_path / "alsa.yaml", tmp_path,
+                       audio={"playback_device": "no_such_pcm_xyz",
+                              "capture_device": "no_such_pcm_xyz"})
     r = _run(cfg)
     assert r.returncode == 2, r.stderr
     assert "audio.playback_device" in r.stderr and "Traceback" not in r.stderr

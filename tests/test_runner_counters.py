@@ -11,8 +11,6 @@ from __future__ import annotations
 import threading
 import time
 
-import yaml
-
 from bladesonar import config
 from bladesonar.analysis import build_reference
 from bladesonar.live import LiveAnalyzer
@@ -21,6 +19,7 @@ from bladesonar.service.notify import NullNotifier
 from bladesonar.service.runner import Service
 from bladesonar.sim import load_scene
 from bladesonar.sim.render import simulate
+from loopback import SCENE, write_config
 
 
 class Collector:
@@ -53,15 +52,12 @@ def _wait(pred, timeout=60.0):
         time.sleep(0.02)
 
 
-def test_audio_counters_accumulate_across_a_reopen(tmp_path, repo_root):
-    scene_path = repo_root / "config" / "scenes" / "paper-room.yaml"
-    data = {"audio": {"backend": "sim"}, "daemon": {"state_dir": str(tmp_path)},
-            "sim": {"scene": str(scene_path), "schedule": "ccw:0.45:60", "realtime": False},
-            "mqtt": {"publish_interval_s": 0.1}}
-    cfg_path = tmp_path / "cfg.yaml"
-    cfg_path.write_text(yaml.safe_dump(data))
+def test_audio_counters_accumulate_across_a_reopen(tmp_path):
+    sections = {"audio": {"backend": "sim"}, "mqtt": {"publish_interval_s": 0.1},
+                "sim": {"schedule": "ccw:0.45:60", "realtime": False}}
+    cfg_path = write_config(tmp_path / "cfg.yaml", tmp_path, **sections)
     cfg = config.load(cfg_path)
-    x, _ = simulate(load_scene(scene_path), cfg, 12.0, schedule="ccw:0.45:12", seed=2,
+    x, _ = simulate(load_scene(SCENE), cfg, 12.0, schedule="ccw:0.45:12", seed=2,
                     snr_db=20.0)
     ref = build_reference(x, cfg, "ccw")
     pubs: list[Collector] = []
@@ -78,8 +74,8 @@ def test_audio_counters_accumulate_across_a_reopen(tmp_path, repo_root):
     th.start()
     _wait(lambda: svc.counters.pulses_processed >= 300)
     # an audio setting changes: the reload closes the sim device and opens a new one
-    data["audio"]["ring_pulses"] = 512
-    cfg_path.write_text(yaml.safe_dump(data))
+    write_config(cfg_path, tmp_path, **{**sections, "audio": {"backend": "sim",
+                                                              "ring_pulses": 512}})
     svc.request_reload()
     _wait(lambda: svc.counters.reloads == 1 and svc.counters.pulses_processed >= 700)
     svc.request_stop()
