@@ -30,6 +30,15 @@ AUDIO_STALL_S = 5.0
 SIGNAL_RETRY_S = 10.0
 
 
+def _add_counts(total: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
+    """``total`` with the integer counters of ``more`` added (other values taken as
+    they are): device sessions' counters summed across reopens."""
+    out = dict(total)
+    for k, v in more.items():
+        out[k] = out.get(k, 0) + v if isinstance(v, int) else v
+    return out
+
+
 @dataclasses.dataclass
 class Counters:
     """What the stats message reports; the loop is the only writer."""
@@ -257,9 +266,7 @@ class Service:
     def _close_audio(self) -> None:
         if self.audio is not None:
             try:
-                for k, v in self.audio.stats().items():
-                    if isinstance(v, int):
-                        self._audio_closed[k] = self._audio_closed.get(k, 0) + v
+                self._audio_closed = _add_counts(self._audio_closed, self.audio.stats())
             except Exception:  # noqa: BLE001 - counters must not block the close
                 log.exception("reading the audio counters failed")
             try:
@@ -297,8 +304,7 @@ class Service:
         """The stats message: health counters a user can alert on, plus the raw detail."""
         audio = dict(self._audio_closed)
         if self.audio is not None:
-            for k, v in self.audio.stats().items():
-                audio[k] = audio.get(k, 0) + v if isinstance(v, int) else v
+            audio = _add_counts(audio, self.audio.stats())
         pub = dict(self.publisher.counters()) if self.publisher is not None else {}
         an = dict(self.analyzer.stats()) if self.analyzer is not None else {}
         t = os.times()
