@@ -308,6 +308,11 @@ class PulseAnalyzer:
         lags = int(math.ceil(1.2 / max(slowest, 1e-6)))
         self.motion = MotionMeter(self.ref.table.shape[1], self.window,
                                   max_lag=max(4, min(lags, self.window // 2)))
+        # lags that cannot reach one blade period at the reference rate never see a moving
+        # pattern recur and read it as no change (simulated corner sensor, 1 s windows: a
+        # fan at the reference rate called stopped in 39 of 120 trials): such a window
+        # gives no stopped verdict
+        self._lags_short = self.motion.max_lag < math.ceil(1.2 / self.ref.cycles_per_pulse)
         self._tsq = (self.ref.table ** 2).sum(axis=1)
         self._fine = aliasing.fine_table(self.ref.table)
         self._ring_d = np.zeros((self.window, len(self._fine[0])))
@@ -448,13 +453,8 @@ class PulseAnalyzer:
     def decision(self) -> Decision:
         """The answer for the last ``window`` pulses."""
         motion, _ = self.motion.statistic()
-        if motion < self.cfg.tracking.motion_threshold and \
-                self.motion.max_lag < math.ceil(1.2 / self.ref.cycles_per_pulse):
-            # the window is too short for its lags to reach one blade period at the
-            # reference rate: a moving pattern never recurs within them and looks like no
-            # change (simulated corner sensor, 1 s: a fan at the reference rate called
-            # stopped in 39 of 120 trials). No verdict on motion from it.
-            motion = float("nan")
+        if motion < self.cfg.tracking.motion_threshold and self._lags_short:
+            motion = float("nan")   # no verdict on motion (see __post_init__)
         # scene: static echo energy over the noise per pulse (raw domain); while nothing
         # changes between pulses, lag-1 differences of raw pulses are pure noise
         st = self.static.mean

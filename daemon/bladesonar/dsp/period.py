@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import EstimationError
+from .aliasing import folded_angles
 
 
 @dataclass(frozen=True)
@@ -289,7 +290,6 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
                 r0, climbed = rm, True
                 break
     if r0 > max_cycles_per_pulse:
-        from .aliasing import folded_angles
         frac = folded_angles(r0, int(span))
         also = (f" Or, if the fan turned slower: {r0:.3f} is {frac} cycle per pulse, and a "
                 f"record at a rate near p/q sees only q={frac.denominator} angles, so its "
