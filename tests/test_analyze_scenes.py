@@ -340,6 +340,26 @@ def test_daemon_path_resolves_the_alias_too(scene, reference):
 
 
 
+def _report_trial(repo_root, scene_name: str, pick, seconds: float, snr_db: float):
+    """Recordings of the report sweep (runtime_report's own rendering and reference):
+    ``pick(job)`` selects the jobs; yields (job, recording, reference, rr module)."""
+    import math
+
+    from bladesonar import runtime_report as rr
+    grid = rr.default_grid()
+    cfg = config.Config()
+    scene = load_scene(repo_root / "config" / "scenes" / f"{scene_name}.yaml")
+    refs = {}
+    for job in (j for j in rr.jobs(grid) if j.scene == scene_name and pick(j)):
+        if job.blades not in refs:
+            refs[job.blades] = rr.make_reference(scene, cfg, job.blades, grid)
+        rate = job.true_ratio * grid.ref_rate_hz
+        clean, unit, p_fan = rr._render(rr._scene(scene, job.blades),
+                                        rr.sweep_config(cfg, job.blades),
+                                        rr._schedule(rate, seconds), seconds, job.seed)
+        yield job, clean + math.sqrt(p_fan / 10 ** (snr_db / 10)) * unit, refs[job.blades], rr
+
+
 @pytest.mark.parametrize("family, scene_name, seed, snr_db", [
     # +0.955 of the reference, 2e-4 blade period per pulse from 1/19: one alias check
     # found the mirror line better by a cost gap of 0.32 and moved the track there
@@ -353,21 +373,10 @@ def test_daemon_path_resolves_the_alias_too(scene, reference):
 def test_alias_check_never_flips_an_ordinary_rate(repo_root, family, scene_name, seed, snr_db):
     """Report trials (30 s, same rate as the 0.47 Hz reference within 5 %): no pulse of
     the track may say 'reversed' with confidence, and the answer is right. Truth: ccw."""
-    import math
-
-    from bladesonar import runtime_report as rr
-    grid = rr.default_grid()
-    job = next(j for j in rr.jobs(grid) if j.family == family and j.seed == seed
-               and j.ratio == 1.0 and j.scene == scene_name)
-    cfg = config.Config()
-    scene = load_scene(repo_root / "config" / "scenes" / f"{scene_name}.yaml")
-    ref = rr.make_reference(scene, cfg, job.blades, grid)
-    rate = job.true_ratio * grid.ref_rate_hz
-    base = rr.sweep_config(cfg, job.blades)
-    clean, unit, p_fan = rr._render(rr._scene(scene, job.blades), base,
-                                    rr._schedule(rate, 30.0), 30.0, job.seed)
-    x = clean + math.sqrt(p_fan / 10 ** (snr_db / 10)) * unit
-    s, rows = analyze(x, rr.sweep_config(cfg, job.blades, 30.0), ref, track=True)
+    job, x, ref, rr = next(_report_trial(
+        repo_root, scene_name, lambda j: j.family == family and j.seed == seed
+        and j.ratio == 1.0, 30.0, snr_db))
+    s, rows = analyze(x, rr.sweep_config(config.Config(), job.blades, 30.0), ref, track=True)
     wrong = [r["t_s"] for r in rows if r["direction"] == "reversed"
              and r["confidence"] >= 0.5]
     assert wrong == []
@@ -378,22 +387,13 @@ def test_a_window_shorter_than_a_blade_period_of_lags_never_says_stopped(repo_ro
     """1 s windows (34 pulses: lags up to 17, a blade period at the 0.47 Hz reference is
     18 pulses) of a fan turning at the reference rate in the corner-sensor room were
     called stopped in 39 of 120 report trials. Truth: moving, so never 'stopped'."""
-    import math
-
-    from bladesonar import runtime_report as rr
-    grid = rr.default_grid()
-    cfg = config.Config()
-    scene = load_scene(repo_root / "config" / "scenes" / "corner-sensor.yaml")
-    ref = rr.make_reference(scene, cfg, 4, grid)
-    jobs = [j for j in rr.jobs(grid) if j.family == "rooms" and j.scene == "corner-sensor"]
+    trials = _report_trial(repo_root, "corner-sensor", lambda j: j.family == "rooms", 4.0,
+                           10.0)
     answers = []
-    for job in jobs[:4]:
-        rate = job.true_ratio * grid.ref_rate_hz
-        clean, unit, p_fan = rr._render(rr._scene(scene, 4), rr.sweep_config(cfg, 4),
-                                        rr._schedule(rate, 4.0), 4.0, job.seed)
-        x = clean + math.sqrt(p_fan / 10) * unit                     # 10 dB
+    for _, (job, x, ref, rr) in zip(range(4), trials):
         n = 44100
         for seg in range(4):
-            s, _ = analyze(x[seg * n:(seg + 1) * n], rr.sweep_config(cfg, 4, 1.0), ref)
+            s, _ = analyze(x[seg * n:(seg + 1) * n],
+                           rr.sweep_config(config.Config(), job.blades, 1.0), ref)
             answers.append(s["direction"])
     assert "stopped" not in answers, answers
