@@ -149,7 +149,10 @@ class SimSettings:
     scene: str = opt("scenes/paper-room.yaml", "scene file (relative to this config "
                      "file's folder unless absolute)")
     schedule: str = opt("ccw:0.45:20", "rotation schedule as DIR:RATE_HZ:SECONDS,... "
-                        "(DIR cw, ccw or stop); the last segment repeats")
+                        "(DIR cw, ccw or stop); SECONDS~RAMP_S ramps linearly from the "
+                        "previous rate over the segment's first RAMP_S s; an item "
+                        "wobble:A:T scales the speed by 1 + A sin(2 pi t / T); the last "
+                        "segment repeats")
     snr_db: float = opt(20.0, "fan-echo to noise power inside the range gate", lo=-30.0,
                         hi=120.0, unit="dB")
     seed: int = opt(1, "random seed of the simulated noise and start offset", lo=0,

@@ -520,16 +520,23 @@ def track_series(rows: list[dict]) -> TrackSeries:
 
 def reversal_times(schedule) -> np.ndarray:
     """Times (s) where a schedule starts turning against its previous moving direction
-    (a stop in between does not hide a reversal)."""
+    (a stop in between does not hide a reversal): at the step of an unramped reversal, at
+    the zero crossing of the signed rate inside a ramp through zero, and where the rate
+    leaves zero after a stop or a spin-down. The speed wobble never changes the sign (its
+    amplitude is below 0.5), so only the base rate's pieces matter."""
     from .sim.schedule import parse
 
     sch = parse(schedule, key="schedule")
-    t, last, out = 0.0, 0.0, []
-    for seg in sch.segments:
-        s = np.sign(seg.signed_hz)
-        if s != 0:
-            if last != 0 and s != last:
-                out.append(t)
-            last = s
-        t += seg.seconds
-    return np.array(out)
+    last, out = 0.0, []
+    for p in sch.pieces:
+        s0, s1 = np.sign(p.start_hz), np.sign(p.end_hz)
+        moving = s0 if s0 != 0 else s1          # sign just after the piece starts
+        if moving != 0:
+            if last != 0 and moving != last:
+                out.append(p.start_s)
+            last = moving
+        if s0 != 0 and s1 != 0 and s1 != s0:    # linear ramp through zero
+            out.append(p.start_s + (p.end_s - p.start_s) * p.start_hz
+                       / (p.start_hz - p.end_hz))
+            last = s1
+    return np.array(out, dtype=np.float64)
