@@ -32,6 +32,16 @@ from .dsp.pulses import OK, STATUS_NAMES, WARMUP, AlignedPulses, PulseAligner, a
 from .dsp.rangedoppler import range_doppler
 from .dsp.tracking import Tracker, TrackerSettings
 from .errors import EstimationError, InputError, ReferenceFileError
+from .transitions import Event, Transitions, TransitionSettings
+
+#: Length of the short motion window that calls a fan at rest, seconds.
+STILL_WINDOW_S = 1.5
+SLOW_FACTOR = 100.0
+STILL_BAND = 0.35
+#: Correlation of the running static pulse with the reference's that shows the same room.
+ROOM_MATCH = 0.5
+#: Fewest pulses the accepted share of a new track is judged on.
+MIN_TRACK_PULSES = 8
 
 #: Version of the reference contents; bump when the table's meaning changes.
 REFERENCE_VERSION = 1
@@ -222,20 +232,38 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
 # Analysis
 
 
+#: Acceleration noise of the tracker's third state, as a share of the steepest ramp
+#: (tracking.max_ramp_hz_s) per half second.
+ACCEL_NOISE = 0.2
+
+
 def tracker_settings(cfg: Config, ref: Reference) -> TrackerSettings:
     """Tracker tuning from the config, with the slew bound from the reference's rate."""
     t = cfg.tracking
     max_rate = min(t.slew_limit * ref.cycles_per_pulse, 0.45)
+    prf = cfg.prf_hz
+    # the steepest ramp, in blade cycles per pulse per pulse; the acceleration's random
+    # walk lets a ramp start within about half a second
+    max_accel = t.max_ramp_hz_s * cfg.scene.blades / (prf * prf)
+    onset = max(0.5 * prf, 1.0)
     return TrackerSettings(max_rate=max_rate, q_rate=t.rate_noise ** 2,
                            meas_sigma=t.meas_sigma, gate_sigma=t.gate_sigma,
                            reacquire_after=t.reacquire_after, init_pulses=t.init_pulses,
-                           min_coherence=t.min_coherence)
+                           min_coherence=t.min_coherence,
+                           q_accel=(max_accel * ACCEL_NOISE) ** 2 / onset,
+                           max_accel=max_accel)
 
 
 def decide_settings(cfg: Config) -> DecideSettings:
     t = cfg.tracking
     return DecideSettings(motion_threshold=t.motion_threshold, min_confidence=t.min_confidence,
-                          slew_limit=t.slew_limit, alias_margin=aliasing.MARGIN)
+                          slew_limit=t.slew_limit, alias_margin=aliasing.MARGIN,
+                          rate_floor_hz=t.rate_floor_hz)
+
+
+def transition_settings(cfg: Config) -> TransitionSettings:
+    t = cfg.tracking
+    return TransitionSettings(rate_floor_hz=t.rate_floor_hz, confirm_s=t.confirm_s)
 
 
 class StaticRemover:
@@ -281,7 +309,7 @@ class PulseAnalyzer:
     tracker: Tracker = field(init=False)
     motion: MotionMeter = field(init=False)
     window: int = field(init=False)
-    _recent: list = field(default_factory=list)  # (accepted, quality) of recent pulses
+    _recent: list = field(default_factory=list)  # (pulse, accepted, quality) of recent pulses
     _prev: np.ndarray | None = None               # last raw pulse (for the noise level)
     _noise: float = float("nan")                  # running raw half lag-1 difference energy
     dropped: int = 0
@@ -298,9 +326,14 @@ class PulseAnalyzer:
     _move_to: float = float("nan")                # a move seen once, awaiting confirmation
     last_move: tuple[float, float, int] | None = None   # (from, to relative rate, pulse)
     _alias_rate: float = float("nan")
+    #: the state machine (transitions.py), its last output and events not yet taken
+    transitions: Transitions = field(init=False)
+    state: Decision | None = None
+    new_events: list[Event] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
+        self.transitions = Transitions(transition_settings(self.cfg), self.cfg.prf_hz)
         self.window = max(int(round(self.cfg.daemon.window_s * self.cfg.prf_hz)), 20)
         # lags up to the blade period at the slowest rate followed (reference rate / slew
         # limit): at some lag within it a moving pattern recurs
@@ -313,6 +346,12 @@ class PulseAnalyzer:
         # fan at the reference rate called stopped in 39 of 120 trials): such a window
         # gives no stopped verdict
         self._lags_short = self.motion.max_lag < math.ceil(1.2 / self.ref.cycles_per_pulse)
+        # the fan coming to rest must show within seconds: a short meter on the raw pulses
+        # (the static-room estimate subtracted from them would itself change as it adapts)
+        short = max(int(round(STILL_WINDOW_S * self.cfg.prf_hz)), 8)
+        self.still = MotionMeter(self.ref.mean_pulse.shape[0], short,
+                                 max_lag=max(3, min(lags, short // 2)))
+        self.slow = StaticRemover(self.static.alpha / SLOW_FACTOR, self.static.mean)
         self._tsq = (self.ref.table ** 2).sum(axis=1)
         self._fine = aliasing.fine_table(self.ref.table)
         self._ring_d = np.zeros((self.window, len(self._fine[0])))
@@ -320,7 +359,9 @@ class PulseAnalyzer:
         self._alias_every = max(self.window // 4, 8)
 
     def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict]:
-        """Match, track and measure motion for a block of pulses; optional per-pulse rows."""
+        """Match, track, measure motion and decide for a block of pulses, pulse by pulse
+        (the state machine sees every pulse, offline as in the daemon); optional
+        per-pulse rows. Events confirmed in the block are added to ``new_events``."""
         a = self.cfg.analysis
         v = block.valid
         self.seen += len(block)
@@ -333,14 +374,15 @@ class PulseAnalyzer:
                                      smooth=a.envelope_smooth)
         m = fp.match(feats, self.ref.table, self._tsq)
         dist = aliasing.distances(feats, self._fine)
-        if not rows:
-            self.motion.update_block(feats)
+        still_feats = fp.envelope_features(self.slow(xv), np.zeros(res.shape[1]),
+                                           kind="envelope", smooth=a.envelope_smooth,
+                                           band=STILL_BAND)
         out = []
         fs = self.cfg.audio.sample_rate
         for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v])):
             st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
-            if rows:
-                self.motion.update(feats[i])
+            self.motion.update(feats[i])
+            self.still.update(still_feats[i])
             j = self._ring_n % self.window
             self._ring_d[j] = dist[i]
             self._ring_k[j] = int(k)
@@ -352,21 +394,30 @@ class PulseAnalyzer:
                 self._noise = e if not math.isfinite(self._noise) else (
                     self._noise + (e - self._noise) / self.window)
             self._prev = xv[i]
-            self._recent.append((not st.outlier and st.locked, float(m.quality[i])))
+            self._recent.append((int(k), not st.outlier and st.locked, float(m.quality[i])))
             if len(self._recent) > self.window:
                 del self._recent[0]
+            t_s = float(edge) / fs
+            d = self.decision()
+            self.state, fired = self.transitions.step(t_s, int(k), d)
+            self.new_events.extend(fired)
             if rows:
-                d = self.decision()
-                row = {"t_s": round(float(edge) / fs, 4), "pulse": int(k),
+                row = {"t_s": round(t_s, 4), "pulse": int(k),
                        "phase": round(float(m.phase[i]), 4),
                        "quality": round(float(m.quality[i]), 4),
                        "track_phase": None if not st.locked else round(st.phase, 4),
                        "track_sd": None if not st.locked else round(
                            math.sqrt(max(float(self.tracker.P[0, 0]), 0.0)), 5),
                        "outlier": st.outlier}
-                row.update(d.as_dict())
+                row.update(self.state.as_dict())
+                row["event"] = fired[-1].kind if fired else None
                 out.append(row)
         return out
+
+    def take_events(self) -> list[Event]:
+        """Events confirmed since the last call (the daemon publishes them)."""
+        got, self.new_events = self.new_events, []
+        return got
 
     def _check_aliases(self) -> None:
         """Every quarter window (every 8 pulses soon after a lock), or when the track
@@ -398,7 +449,8 @@ class PulseAnalyzer:
         if len(k) < 2:
             return
         sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
-        fracs = aliasing.near_fractions(rate, span=int(k[-1] - k[0]) + 1, rate_std=sd)
+        fracs = aliasing.near_fractions(rate, span=int(k[-1] - k[0]) + 1, rate_std=sd,
+                                        accel=self._clear_accel())
         if not fracs:
             return
         if fracs[0] == 0:
@@ -450,6 +502,15 @@ class PulseAnalyzer:
                                f"{aliasing.MARGIN:g}); another fan speed, or another "
                                "waveform.pri_samples with a new reference, avoids it")
 
+    def _clear_accel(self) -> float:
+        """The tracked acceleration beyond twice its standard deviation (0 when it could be
+        noise), cycles per pulse per pulse."""
+        tr = self.tracker
+        if not tr.locked or len(tr.x) < 3:
+            return 0.0
+        a, sd = abs(float(tr.x[2])), math.sqrt(max(float(tr.P[2, 2]), 0.0))
+        return max(a - 2.0 * sd, 0.0)
+
     def decision(self) -> Decision:
         """The answer for the last ``window`` pulses."""
         motion, _ = self.motion.statistic()
@@ -459,8 +520,22 @@ class PulseAnalyzer:
         # changes between pulses, lag-1 differences of raw pulses are pure noise
         st = self.static.mean
         scene = float(st @ st) / self._noise if self._noise > 0 else float("nan")
-        acc = np.array([r[0] for r in self._recent], dtype=np.float64)
-        qual = np.array([r[1] for r in self._recent], dtype=np.float64)
+        # a gate whose static part is the reference's own room holds more than noise, even
+        # when its echoes are weak next to the noise of one pulse (a fan at rest from the
+        # start at 10 dB was 'nothing but noise'); the running mean averages the noise down
+        rm = self.ref.mean_pulse
+        den = math.sqrt(float(st @ st) * float(rm @ rm))
+        if den > 0 and float(st @ rm) / den >= ROOM_MATCH:
+            scene = math.inf
+        # the share accepted counts the current track's pulses only: a track that locked a
+        # second ago is not judged by the pulses before it (a start, a reversal)
+        since = self.tracker.locked_k if self.tracker.locked else None
+        recent = self._recent
+        if since is not None:
+            mine = [r for r in recent if r[0] > since]
+            recent = mine if len(mine) >= MIN_TRACK_PULSES else recent[-MIN_TRACK_PULSES:]
+        acc = np.array([r[1] for r in recent], dtype=np.float64)
+        qual = np.array([r[2] for r in recent], dtype=np.float64)
         # share of the informative matches that the track accepted, each weighted like the
         # filter weighs it (1 / measurement variance, i.e. quality squared)
         wq = qual * qual
@@ -469,7 +544,12 @@ class PulseAnalyzer:
         locked = x is not None
         rate = float(x[1]) if locked else float("nan")
         sd = math.sqrt(max(float(self.tracker.P[1, 1]), 0.0)) if locked else float("nan")
-        return decide(rate=rate, rate_std=sd, locked=locked,
+        prf = self.cfg.prf_hz
+        accel = float(x[2]) * prf if locked and len(x) == 3 else 0.0
+        accel_sd = math.sqrt(max(float(self.tracker.P[2, 2]), 0.0)) * prf \
+            if locked and len(x) == 3 else math.inf
+        still, _ = self.still.statistic()
+        return decide(still=still, accel=accel, accel_std=accel_sd,rate=rate, rate_std=sd, locked=locked,
                       accepted=accepted,
                       quality=float(qual.mean()) if len(qual) else 0.0,
                       motion=motion, scene=scene,
@@ -572,6 +652,8 @@ def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
                         "pulse shows few blade angles)")
     warnings.extend(d.warnings)
     e = np.concatenate(edges)
+    # the answer for the last window (a recording's own answer, from its last window_s);
+    # the events along the way come from the state machine the daemon runs
     summary = d.as_dict()
     summary.update(pulses=int(n_pulses), used_pulses=int(n_valid),
                    dropped_pulses=dropped,
@@ -579,5 +661,7 @@ def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
                    outliers=int(an.tracker.outliers),
                    clock_ppm=round((float(np.median(np.diff(e))) / pri - 1.0) * 1e6, 1)
                    if len(e) > 2 else None,
+                   events=[dict(kind=ev.kind, t_s=round(ev.t_s, 3), **ev.details())
+                           for ev in an.transitions.events],
                    warnings=warnings)
     return summary, rows

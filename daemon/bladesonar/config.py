@@ -114,6 +114,11 @@ class TrackingSettings:
     rate_noise: float = opt(0.0003, "rate random walk per pulse (standard deviation, in "
                             "reference cycles per pulse): how fast the fan may speed up or "
                             "slow down", lo=0.0, hi=0.5)
+    max_ramp_hz_s: float = opt(0.0, "experimental: above 0 the tracker also carries the "
+                               "rate's change (steepest ramp, e.g. 0.3) and follows spin-ups "
+                               "and spin-downs without lag, but is weaker at rates near p/q "
+                               "blade period per pulse; 0: constant-rate model", lo=0.0,
+                               hi=100.0, unit="Hz/s")
     meas_sigma: float = opt(0.02, "phase noise of a perfect match, in blade periods; scaled "
                             "by 1/match quality", lo=1e-6, hi=0.5)
     gate_sigma: float = opt(4.0, "innovation gate: matches further than this many standard "
@@ -128,6 +133,11 @@ class TrackingSettings:
                                   "below which the target is called stopped", lo=1.0, hi=10.0)
     min_confidence: float = opt(0.5, "below this confidence the direction is reported as "
                                 "unknown", lo=0.0, hi=1.0)
+    rate_floor_hz: float = opt(0.05, "no direction is claimed for a fan turning slower than "
+                               "this (it is stopped or unknown)", lo=0.0, hi=10.0, unit="Hz")
+    confirm_s: float = opt(0.5, "a new turning state (start, reversal) must hold this long "
+                           "before it is published and its event sent", lo=0.0, hi=60.0,
+                           unit="s")
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ import numpy as np
 from .analysis import PulseAnalyzer, Reference, new_analyzer
 from .config import Config
 from .dsp.pulses import DROPOUT, OK, AlignedPulses, PulseAligner
+from .transitions import Event
 
 #: Samples beyond the gate that the fractional-shift interpolator reads.
 _INTERP_MARGIN = 32
@@ -99,14 +100,18 @@ class LiveAnalyzer:
 
     def estimate(self) -> dict[str, Any] | None:
         """The decision over the last ``daemon.window_s``, as the state message's fields."""
-        if self.analyzer is None:
+        if self.analyzer is None or self.analyzer.state is None:
             return None
-        d = self.analyzer.decision().as_dict()
+        d = self.analyzer.state.as_dict()
         d["rotating"] = {"same": True, "reversed": True, "stopped": False}.get(d["direction"])
         d["window_s"] = round(min(self.cfg.daemon.window_s,
                                   self.analyzer.seen / self.cfg.prf_hz), 3)
         d["reference"] = self.reference_id
         return d
+
+    def take_events(self) -> list[Event]:
+        """Motion events (started, stopped, reversed) confirmed since the last call."""
+        return self.analyzer.take_events() if self.analyzer is not None else []
 
     def stats(self) -> dict[str, Any]:
         an = self.analyzer

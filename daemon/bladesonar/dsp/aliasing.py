@@ -42,7 +42,7 @@ FIT_STEPS_PER_BIN = 4
 
 
 def near_fractions(rate: float, *, span: int, rate_std: float = 0.0, max_q: int = MAX_Q,
-                   min_q: int = 2, zero: bool = True) -> list[Fraction]:
+                   min_q: int = 2, zero: bool = True, accel: float = 0.0) -> list[Fraction]:
     """The fractions p/q (``min_q <= q <= max_q``, smallest q first) that ``rate`` (cycles
     per pulse) is commensurate with over ``span`` pulses.
 
@@ -55,10 +55,17 @@ def near_fractions(rate: float, *, span: int, rate_std: float = 0.0, max_q: int 
     With ``zero``, a rate that close to 0 gives 0/1 first: a track that stands still on a
     moving fan may be the alias of any p/q (the pulses that show no blade all match one
     phase).
+
+    ``accel`` (cycles per pulse per pulse) is how fast the rate changes: a fan on a ramp
+    passes p/q instead of staying there, and the angles it visits spread by about
+    ``|accel| span^2 / 8`` about a line; once that exceeds half the gap 1/q they are not
+    q angles any more, and p/q is not near (a ramp through 1/19 gave 1.5 s of 'rate
+    ambiguous' otherwise).
     """
     if not math.isfinite(rate):
         return []
     n = max(int(span), 1)
+    spread = abs(accel) * n * n / 8.0 if math.isfinite(accel) else 0.0
     sd = max(float(rate_std), 0.0) if math.isfinite(rate_std) else 0.0
     out = []
     if zero and abs(rate) <= 0.5 / n + 2.0 * sd:
@@ -67,7 +74,8 @@ def near_fractions(rate: float, *, span: int, rate_std: float = 0.0, max_q: int 
         p = round(rate * q)
         f = Fraction(p, q)
         tol = 0.5 / (q * n)
-        if p != 0 and f.denominator == q and abs(rate - p / q) <= tol + min(2.0 * sd, tol):
+        if p != 0 and f.denominator == q and abs(rate - p / q) <= tol + min(2.0 * sd, tol) \
+                and spread < 0.5 / q:
             out.append(f)
     return out
 

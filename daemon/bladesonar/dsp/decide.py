@@ -134,6 +134,8 @@ class DecideSettings:
     slew_limit: float = 4.0
     good_quality: float = 0.02
     alias_margin: float = 0.1
+    rate_floor_hz: float = 0.05
+    changing_hz_s: float = 0.02
 
 
 @dataclass
@@ -148,13 +150,19 @@ class Decision:
     confidence: float
     reason: str
     warnings: list[str] = field(default_factory=list)
+    rate_state: str | None = None
+    """'settled' or 'changing' while turning, else None."""
+    rate_change_hz_s: float | None = None
+    """How fast the rotation rate changes (Hz per second, + faster), while turning."""
 
     def as_dict(self) -> dict:
         def r(v: float | None, n: int) -> float | None:
             return None if v is None or not math.isfinite(v) else round(float(v), n)
         return dict(direction=self.direction, rotation=self.rotation,
                     relative_rate=r(self.relative_rate, 5), rate_hz=r(self.rate_hz, 5),
-                    rpm=r(self.rpm, 3), confidence=r(self.confidence, 4), reason=self.reason)
+                    rpm=r(self.rpm, 3), rate_state=self.rate_state,
+                    rate_change_hz_s=r(self.rate_change_hz_s, 4),
+                    confidence=r(self.confidence, 4), reason=self.reason)
 
 
 def _phi(x: float) -> float:
@@ -164,7 +172,8 @@ def _phi(x: float) -> float:
 def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quality: float,
            motion: float, scene: float, ref_cycles_per_pulse: float, ref_rate_hz: float,
            ref_direction: str = "unknown", alias_gap: float = math.inf,
-           alias_note: str = "",
+           alias_note: str = "", still: float = math.nan, accel: float = 0.0,
+           accel_std: float = math.inf,
            settings: DecideSettings = DecideSettings()) -> Decision:
     """Direction and rate of one window.
 
@@ -175,12 +184,17 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     locked : bool
         Whether the tracker holds a track.
     accepted : float
-        Share of recent matches (weighted by quality squared, as the filter weighs them) the tracker accepted, in [0, 1].
+        Share of recent matches (weighted by quality squared, as the filter weighs them)
+        the tracker accepted, in [0, 1].
     quality : float
         Mean match contrast of recent pulses, in [0, 1]; below ``good_quality`` it scales
         the confidence down (a scene hardly visible).
     motion, scene : float
-        From :class:`MotionMeter` (NaN if not yet known).
+        From :class:`MotionMeter` over the window (NaN if not yet known).
+    still : float
+        The motion ratio of a short window (the last second or two; NaN if not known):
+        below ``motion_threshold`` nothing has changed lately, so a fan that has just come
+        to rest is called stopped without waiting for the long window to forget it.
     ref_cycles_per_pulse, ref_rate_hz : float
         Reference blade phase per pulse and its rotation rate, Hz (> 0).
     ref_direction : {"cw", "ccw", "unknown"}
@@ -191,32 +205,52 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         Below ``alias_margin`` the rate is ambiguous (*unknown*, the note is the reason,
         the confidence scaled below ``min_confidence``); a note on a trusted rate becomes
         a warning (the track was moved off an alias).
+    accel, accel_std : float
+        Tracked change of the rate per second (reference cycles per pulse, per second) and
+        its standard deviation: the rate is 'changing' when it is clearly not zero.
+
+    Notes
+    -----
+    No direction is claimed below ``rate_floor_hz``: a fan that slow is stopped (when the
+    short window saw no change) or unknown. A stop is never read from a small rate alone.
     """
     s = settings
     warnings: list[str] = []
-    if math.isfinite(motion) and motion < s.motion_threshold:
-        if not (scene >= s.scene_threshold):
-            return Decision("unknown", None, None, None, None, 0.0,
-                            "nothing but noise in the range gate", warnings)
-        conf = min(max((s.motion_threshold - motion) / (s.motion_threshold - 1.0), 0.0), 1.0)
-        return Decision("stopped", None, 0.0, 0.0, 0.0, conf,
-                        f"no change between pulses beyond noise (motion {motion:.3f} < "
+    if math.isfinite(motion) and motion < s.motion_threshold and not (scene >= s.scene_threshold):
+        return Decision("unknown", None, None, None, None, 0.0,
+                        "nothing but noise in the range gate", warnings)
+    turning = locked and math.isfinite(rate) and ref_cycles_per_pulse > 0
+    conf = 0.0
+    rel = rel_std = rate_hz = math.nan
+    if turning:
+        rel = rate / ref_cycles_per_pulse
+        rel_std = rate_std / ref_cycles_per_pulse
+        p_sign = _phi(abs(rate) / rate_std) if rate_std > 0 else 1.0
+        conf = (2.0 * p_sign - 1.0) * min(max(accepted, 0.0), 1.0)
+        if quality < s.good_quality:
+            # matches barely better than chance on average: the scene is hardly visible
+            conf *= max(quality, 0.0) / s.good_quality
+        rate_hz = abs(rel) * ref_rate_hz
+    # a confident track above the floor outweighs a motion meter that saw little change
+    # (a fan at a rate whose pattern recurs at none of the meter's lags)
+    # (only a clear one: twice the floor, four standard deviations from zero)
+    moving = turning and conf >= s.min_confidence and rate_hz >= 2.0 * s.rate_floor_hz \
+        and abs(rate) >= 4.0 * rate_std
+    quiet = still < s.motion_threshold if math.isfinite(still) else \
+        (math.isfinite(motion) and motion < s.motion_threshold)
+    if quiet and not moving:
+        m = still if math.isfinite(still) else motion
+        c = min(max((s.motion_threshold - m) / (s.motion_threshold - 1.0), 0.0), 1.0)
+        return Decision("stopped", None, 0.0, 0.0, 0.0, c,
+                        f"no change between pulses beyond noise (motion {m:.3f} < "
                         f"{s.motion_threshold:g})", warnings)
-    if not locked or not math.isfinite(rate) or not ref_cycles_per_pulse > 0:
+    if not turning:
         return Decision("unknown", None, None, None, None, 0.0,
                         "no consistent match against the reference", warnings)
-    rel = rate / ref_cycles_per_pulse
-    rel_std = rate_std / ref_cycles_per_pulse
-    p_sign = _phi(abs(rate) / rate_std) if rate_std > 0 else 1.0
-    conf = (2.0 * p_sign - 1.0) * min(max(accepted, 0.0), 1.0)
-    if quality < s.good_quality:
-        # matches barely better than chance on average: the scene is hardly visible
-        conf *= max(quality, 0.0) / s.good_quality
     if abs(rel) > s.slew_limit:
         warnings.append(f"|relative rate| {abs(rel):.2f} exceeds the slew limit "
                         f"{s.slew_limit:g}: re-record the reference nearer this speed")
         conf *= 0.5
-    rate_hz = abs(rel) * ref_rate_hz
     if not math.isfinite(motion):
         conf *= 0.5
     if s.alias_margin > 0 and alias_gap < s.alias_margin:
@@ -230,10 +264,21 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         return Decision("unknown", None, rel, rate_hz, rate_hz * 60.0, conf,
                         f"weak evidence (confidence {conf:.2f} < {s.min_confidence:g}; "
                         f"relative rate {rel:+.3f} +- {rel_std:.3f})", warnings)
+    if rate_hz < s.rate_floor_hz:
+        return Decision("unknown", None, rel, rate_hz, rate_hz * 60.0, conf,
+                        f"turning slower than the floor ({rate_hz:.3f} Hz < "
+                        f"{s.rate_floor_hz:g} Hz): no direction is claimed", warnings)
+    # the rate's change in Hz/s (sign: + when the fan speeds up)
+    hz_per = ref_rate_hz / ref_cycles_per_pulse           # Hz per (cycle per pulse)
+    change = accel * hz_per * (1.0 if rate >= 0 else -1.0)
+    change_sd = accel_std * hz_per
+    rate_state = "changing" if (abs(change) >= s.changing_hz_s and
+                                abs(change) > 2.0 * change_sd) else "settled"
     same = rel > 0
     direction = "same" if same else "reversed"
     rotation = None
     if ref_direction in ("cw", "ccw"):
         rotation = ref_direction if same else ("ccw" if ref_direction == "cw" else "cw")
     return Decision(direction, rotation, rel, rate_hz, rate_hz * 60.0, conf,
-                    f"relative rate {rel:+.4f} +- {rel_std:.4f}", warnings)
+                    f"relative rate {rel:+.4f} +- {rel_std:.4f}", warnings,
+                    rate_state=rate_state, rate_change_hz_s=change)

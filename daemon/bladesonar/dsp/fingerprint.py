@@ -35,7 +35,7 @@ from scipy import fft as sp_fft
 
 
 def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str = "envelope",
-                      smooth: int = 5) -> np.ndarray:
+                      smooth: int = 5, band: float = 1.0) -> np.ndarray:
     """The vectors that are matched: one row per pulse.
 
     Parameters
@@ -48,6 +48,11 @@ def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str =
         Envelope features (default, see module notes) or the raw mean-removed samples.
     smooth : int
         Length of the moving average applied to the envelope along range, samples.
+    band : float
+        Fraction of the band up to Nyquist kept before the envelope (envelope kind only).
+        Below 1 it drops the top of the band, where the aligner's fractional shift is
+        least exact: with clock drift, the strong static echoes there change a little
+        from pulse to pulse although nothing in the room moves.
 
     Returns
     -------
@@ -63,6 +68,8 @@ def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str =
     spec = sp_fft.rfft(y, n=nfft, axis=1)
     # analytic signal: positive frequencies doubled, negative ones zero
     spec[:, 1:(nfft + 1) // 2] *= 2.0
+    if band < 1.0:
+        spec[:, max(int(band * (nfft // 2)), 1):] = 0.0
     full = np.zeros((n, nfft), dtype=complex)
     full[:, :spec.shape[1]] = spec
     env = np.abs(sp_fft.ifft(full, axis=1)[:, :L])

@@ -32,29 +32,52 @@ def wrap(d: float | np.ndarray) -> float | np.ndarray:
         (d + 0.5) % 1.0 - 0.5)
 
 
-def kalman_predict(x: np.ndarray, P: np.ndarray, q: float, steps: int = 1
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Propagate ``steps`` pulses under constant rate with rate random-walk density ``q``.
+def transition(steps: float, dim: int) -> np.ndarray:
+    """State transition over ``steps`` pulses: constant rate (dim 2) or constant rate of
+    change (dim 3: phase, rate, acceleration)."""
+    n = float(steps)
+    if dim == 2:
+        return np.array([[1.0, n], [0.0, 1.0]])
+    return np.array([[1.0, n, 0.5 * n * n], [0.0, 1.0, n], [0.0, 0.0, 1.0]])
+
+
+def process_noise(steps: float, dim: int, q: float, q_accel: float = 0.0) -> np.ndarray:
+    """Covariance added over ``steps`` pulses by a rate random walk of variance ``q`` per
+    pulse and (dim 3) an acceleration random walk of variance ``q_accel`` per pulse
+    (continuous white-noise integrals, exact for any gap)."""
+    n = float(steps)
+    Q = np.zeros((dim, dim))
+    Q[:2, :2] = q * np.array([[n ** 3 / 3.0, n * n / 2.0], [n * n / 2.0, n]])
+    if dim == 3:
+        Q += q_accel * np.array([[n ** 5 / 20.0, n ** 4 / 8.0, n ** 3 / 6.0],
+                                 [n ** 4 / 8.0, n ** 3 / 3.0, n * n / 2.0],
+                                 [n ** 3 / 6.0, n * n / 2.0, n]])
+    return Q
+
+
+def kalman_predict(x: np.ndarray, P: np.ndarray, q: float, steps: int = 1,
+                   q_accel: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Propagate ``steps`` pulses (gaps after lost pulses included).
 
     Parameters
     ----------
-    x : ndarray, shape (2,)
-        [phase (cycles), rate (cycles/pulse)].
-    P : ndarray, shape (2, 2)
+    x : ndarray, shape (2,) or (3,)
+        [phase (cycles), rate (cycles/pulse)] or with acceleration (cycles/pulse^2).
+    P : ndarray, shape like (len(x), len(x))
         Covariance.
     q : float
         Rate noise variance per pulse, (cycles/pulse)^2.
     steps : int
-        Pulses to advance (gaps after lost pulses).
+        Pulses to advance.
+    q_accel : float
+        Acceleration noise variance per pulse (3-state model only).
     """
-    n = float(steps)
-    ph, w = float(x[0]), float(x[1])
-    p00, p01, p11 = float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
-    a00 = p00 + 2 * n * p01 + n * n * p11 + q * n ** 3 / 3.0
-    a01 = p01 + n * p11 + q * n * n / 2.0
-    a11 = p11 + q * n
-    return (np.array([(ph + n * w) % 1.0, w]),
-            np.array([[a00, a01], [a01, a11]]))
+    dim = len(x)
+    F = transition(steps, dim)
+    xn = F @ np.asarray(x, dtype=np.float64)
+    xn[0] %= 1.0
+    Pn = F @ P @ F.T + process_noise(steps, dim, q, q_accel)
+    return xn, 0.5 * (Pn + Pn.T)
 
 
 def innovation(x: np.ndarray, P: np.ndarray, z: float, r: float) -> tuple[float, float]:
@@ -68,19 +91,18 @@ def kalman_update(x: np.ndarray, P: np.ndarray, z: float, r: float
     nu, s = innovation(x, P, z, r)
     if not s > 0:
         return x, P
-    p00, p01, p11 = float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
-    k0, k1 = p00 / s, p01 / s
-    # (I - K H) P (I - K H)^T + K r K^T with H = [1, 0]
-    a, c = 1.0 - k0, -k1
-    n00 = a * a * p00 + k0 * k0 * r
-    n01 = a * (c * p00 + p01) + k0 * k1 * r
-    n11 = c * c * p00 + 2 * c * p01 + p11 + k1 * k1 * r
-    xn = np.array([(float(x[0]) + k0 * nu) % 1.0, float(x[1]) + k1 * nu])
-    return xn, np.array([[n00, n01], [n01, n11]])
+    K = P[:, 0] / s
+    # (I - K H) P (I - K H)^T + K r K^T with H = [1, 0, ...]
+    A = np.eye(len(x))
+    A[:, 0] -= K
+    Pn = A @ P @ A.T + r * np.outer(K, K)
+    xn = np.asarray(x, dtype=np.float64) + K * nu
+    xn[0] %= 1.0
+    return xn, 0.5 * (Pn + Pn.T)
 
 
 def kalman_step(x: np.ndarray, P: np.ndarray, z: float | None, *, q: float, r: float,
-                steps: int = 1) -> tuple[np.ndarray, np.ndarray]:
+                steps: int = 1, q_accel: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """One pulse: predict ``steps`` pulses, then update with ``z`` (None: predict only).
 
     Returns
@@ -88,7 +110,7 @@ def kalman_step(x: np.ndarray, P: np.ndarray, z: float | None, *, q: float, r: f
     x : ndarray, shape (2,)
     P : ndarray, shape (2, 2)
     """
-    x, P = kalman_predict(x, P, q, steps)
+    x, P = kalman_predict(x, P, q, steps, q_accel)
     if z is None:
         return x, P
     return kalman_update(x, P, z, r)
@@ -161,6 +183,12 @@ class TrackerSettings:
         Matches used by the circular-regression initialisation.
     min_coherence : float
         Coherence needed to lock.
+    q_accel : float
+        Acceleration random-walk variance per pulse, (cycles/pulse^2)^2. Above 0 the
+        filter carries a third state, the rate's change per pulse, so that a fan speeding
+        up or slowing down is followed without lag; 0 keeps the constant-rate model.
+    max_accel : float
+        Largest |acceleration| a new track starts with as uncertainty (cycles/pulse^2).
     """
 
     max_rate: float
@@ -170,6 +198,8 @@ class TrackerSettings:
     reacquire_after: int = 6
     init_pulses: int = 24
     min_coherence: float = 0.6
+    q_accel: float = 0.0
+    max_accel: float = 0.0
 
 
 @dataclass
@@ -185,6 +215,8 @@ class TrackState:
     locked: bool
     outlier: bool
     coherence: float
+    accel: float = 0.0
+    accel_std: float = 0.0
 
 
 @dataclass
@@ -204,6 +236,8 @@ class Tracker:
     updates: int = 0
     coherence: float = 0.0
     start_k: int | None = None   # first pulse of the matches the current track began from
+    locked_k: int | None = None  # pulse at which the current track locked
+    relocks: int = 0             # moves of the track to another line (alias checks)
     _recent: deque = field(default_factory=deque)
 
     def __post_init__(self) -> None:
@@ -213,7 +247,8 @@ class Tracker:
     def locked(self) -> bool:
         return self.x is not None
 
-    def _r(self, quality: float) -> float:
+    def r(self, quality: float) -> float:
+        """Measurement variance of a match of this quality."""
         s = self.settings.meas_sigma / max(float(quality), 0.05)
         return min(s, 0.5) ** 2
 
@@ -230,10 +265,17 @@ class Tracker:
         var = min(max(-2.0 * math.log(max(coh, 1e-9)) / (2 * math.pi) ** 2, 1e-8), 0.1)
         n = float(len(k))
         span = max(float(k[-1] - k[0]), 1.0)
-        self.x = np.array([phase, rate])
-        self.P = np.array([[4.0 * var / n, 0.0], [0.0, 12.0 * var / (n * span * span)]])
+        if st.q_accel > 0:
+            self.x = np.array([phase, rate, 0.0])
+            # the start fits a constant rate; a fan on a ramp has some acceleration in it
+            self.P = np.diag([4.0 * var / n, 12.0 * var / (n * span * span)
+                              + (st.max_accel * span / 2.0) ** 2, st.max_accel ** 2])
+        else:
+            self.x = np.array([phase, rate])
+            self.P = np.array([[4.0 * var / n, 0.0], [0.0, 12.0 * var / (n * span * span)]])
         self.last_k = int(k[-1])
         self.start_k = int(k[0])
+        self.locked_k = int(k[-1])
         self.outlier_run = 0
         return True
 
@@ -242,8 +284,12 @@ class Tracker:
         covariance: an alias check found the line the matches alone could not single out."""
         if self.x is None:
             return
-        self.x = np.array([float(phase) % 1.0, float(rate)])
+        self.x = self.x.copy()
+        self.x[0], self.x[1] = float(phase) % 1.0, float(rate)
+        if len(self.x) == 3:
+            self.x[2] = 0.0    # the new line is a constant-rate fit
         self.last_k = int(k)
+        self.relocks += 1
         self.outlier_run = 0
 
     def update(self, k: int, z: float, quality: float) -> TrackState:
@@ -255,9 +301,9 @@ class Tracker:
             self._init()
         else:
             steps = max(int(k) - int(self.last_k), 1)
-            self.x, self.P = kalman_predict(self.x, self.P, st.q_rate, steps)
+            self.x, self.P = kalman_predict(self.x, self.P, st.q_rate, steps, st.q_accel)
             self.last_k = int(k)
-            r = self._r(quality)
+            r = self.r(quality)
             nu, s = innovation(self.x, self.P, z, r)
             slew = st.max_rate + 3.0 * math.sqrt(max(float(self.P[1, 1]), 0.0))
             if nu * nu > st.gate_sigma ** 2 * s or abs(nu) > max(slew, 0.05):
@@ -274,6 +320,9 @@ class Tracker:
         if self.x is None:
             return TrackState(int(k), float(z), float(quality), float("nan"), float("nan"),
                               float("nan"), False, outlier, self.coherence)
+        acc, acc_sd = (float(self.x[2]), math.sqrt(max(float(self.P[2, 2]), 0.0))) \
+            if len(self.x) == 3 else (0.0, 0.0)
         return TrackState(int(k), float(z), float(quality), float(self.x[0]), float(self.x[1]),
                           math.sqrt(max(float(self.P[1, 1]), 0.0)), True, outlier,
-                          self.coherence)
+                          self.coherence, acc, acc_sd)
+

@@ -41,7 +41,8 @@ EVENT_KINDS = ("reversed", "started", "stopped", "reference_missing")
 
 #: The state payload's keys, in order; missing estimate fields are sent as null.
 STATE_KEYS = ("direction", "rotation", "rotating", "rate_hz", "rpm", "relative_rate",
-              "confidence", "window_s", "reference", "status")
+              "rate_state", "rate_change_hz_s", "confidence", "window_s", "reference",
+              "status")
 
 #: Significant digits kept in float payload values.
 FLOAT_DIGITS = 6

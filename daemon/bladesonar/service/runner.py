@@ -85,8 +85,6 @@ class Service:
         self.reference: Any = None
         self._ready_sent = False
         self._last_state: dict[str, Any] | None = None
-        self._known_rotating: bool | None = None   # last rotating value that was known
-        self._known_turning: str | None = None     # last same/reversed while turning
         self._reference_problem: str | None = None
         self._signal_problem_text: str | None = None
         self._cpu_mark = (0.0, 0.0)
@@ -189,33 +187,15 @@ class Service:
         return f"{rot}, {rate_s}, confidence {est.get('confidence', 0):.2f}"
 
     def _events(self, est: dict[str, Any]) -> bool:
-        """Publish events for changes of direction and start/stop; True if any.
-
-        Changes are judged between *known* states: an 'unknown' stretch in between (a
-        noisy window) neither starts nor stops the fan, so each real change fires once.
-        """
+        """Publish the motion events the analysis confirmed (started, stopped, reversed:
+        transitions.py decides them, the same code as ``analyze --track``); True if any,
+        or if this is the first estimate."""
         first = self._last_state is None
         self._last_state = est
         fired = first
-        rotating = est.get("rotating")
-        if est.get("direction") != "unknown" and rotating is not None:
-            if self._known_rotating is not None and rotating != self._known_rotating:
-                self.publisher.publish_event("started" if rotating else "stopped",
-                                             direction=est.get("direction"),
-                                             rotation=est.get("rotation"),
-                                             rate_hz=est.get("rate_hz"))
-                fired = True
-            self._known_rotating = rotating
-        turning = ("same", "reversed")
-        if est.get("direction") in turning:
-            if self._known_turning is not None and est["direction"] != self._known_turning:
-                self.publisher.publish_event("reversed", direction=est["direction"],
-                                             rotation=est.get("rotation"),
-                                             rate_hz=est.get("rate_hz"))
-                fired = True
-            self._known_turning = est["direction"]
-        elif est.get("direction") == "stopped":
-            self._known_turning = None     # a restart in either sense is 'started'
+        for ev in self.analyzer.take_events():
+            self.publisher.publish_event(ev.kind, **ev.details())
+            fired = True
         return fired
 
     def _signal_problem(self, problem: str) -> None:

@@ -1,0 +1,157 @@
+"""What a subscriber should have been told, from a schedule's truth, and how a run did
+(pure).
+
+Truth events of a schedule (the fan's signed rate over time):
+
+* ``stopped`` when the fan comes to rest (rate exactly 0 for at least ``min_rest_s``, 2 s:
+  the short motion window plus its confirmation cannot see a shorter rest)
+  after turning;
+* ``started`` when, after a rest, |rate| first reaches ``moving_hz``;
+* ``reversed`` when the rate reaches ``moving_hz`` in the other direction without a
+  rest in between (a reversal through zero).
+
+A run's events are matched to these in order, kind by kind: a detected event within
+``[t - early_s, t + late_s]`` of a truth event of its kind is a hit (its latency is
+``t_detected - t``); any other detected event is false, any truth event without one is
+missed. Published states are scored pulse by pulse: right, unknown or wrong, where
+stretches of transition (0 < |rate| < ``moving_hz``) count any known answer that does not
+claim the wrong direction as right.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from .schedule import Schedule
+
+#: |rate| at which a fan counts as turning for the truth events (Hz).
+MOVING_HZ = 0.15
+
+
+@dataclass(frozen=True)
+class TruthEvent:
+    kind: str
+    t_s: float
+    sign: int            # +1 ccw, -1 cw, 0 for stopped
+
+
+def truth_events(schedule: Schedule, seconds: float, *, moving_hz: float = MOVING_HZ,
+                 min_rest_s: float = 2.0, step_s: float = 0.005) -> list[TruthEvent]:
+    """The events an ideal observer reports for ``schedule`` over ``[0, seconds]``."""
+    t = np.arange(0.0, seconds, step_s)
+    r = schedule.rate_at(t)
+    out: list[TruthEvent] = []
+    known: int | None = None          # +1 / -1 turning, 0 at rest
+    rest_from: float | None = None
+    for ti, ri in zip(t, r):
+        if ri == 0.0:
+            if rest_from is None:
+                rest_from = float(ti)
+            if known not in (None, 0) and ti - rest_from >= min_rest_s:
+                out.append(TruthEvent("stopped", rest_from, 0))
+                known = 0
+            elif known is None and ti - rest_from >= min_rest_s:
+                known = 0
+            continue
+        rest_from = None
+        if abs(ri) >= moving_hz:
+            s = 1 if ri > 0 else -1
+            if known == 0:
+                out.append(TruthEvent("started", float(ti), s))
+            elif known is not None and known != s:
+                out.append(TruthEvent("reversed", float(ti), s))
+            known = s
+    return out
+
+
+@dataclass
+class Score:
+    """Events and states of one run against the truth."""
+
+    truth: list[TruthEvent]
+    hits: list[tuple[TruthEvent, float]] = field(default_factory=list)   # (truth, latency)
+    false: list[tuple[str, float]] = field(default_factory=list)         # (kind, time)
+    missed: list[TruthEvent] = field(default_factory=list)
+    right: int = 0
+    unknown: int = 0
+    wrong: int = 0
+    rate_errors: list[float] = field(default_factory=list)   # relative, while turning
+
+    @property
+    def states(self) -> int:
+        return self.right + self.unknown + self.wrong
+
+    def latencies(self, kind: str) -> list[float]:
+        return [lat for ev, lat in self.hits if ev.kind == kind]
+
+    def summary(self) -> dict:
+        """JSON-able figures: counts, latency median/max per kind, state shares, rate
+        error percentiles."""
+        def stats(xs: Sequence[float]) -> dict | None:
+            return None if not xs else {"n": len(xs), "median": round(float(np.median(xs)), 2),
+                                        "max": round(float(np.max(xs)), 2)}
+        n = max(self.states, 1)
+        err = np.asarray(self.rate_errors)
+        return {
+            "truth_events": len(self.truth), "hits": len(self.hits),
+            "false": len(self.false), "missed": len(self.missed),
+            "false_detail": [(k, round(t, 2)) for k, t in self.false],
+            "missed_detail": [(e.kind, round(e.t_s, 2)) for e in self.missed],
+            "latency_s": {k: stats(self.latencies(k)) for k in ("started", "stopped",
+                                                               "reversed")},
+            "state_share": {"right": round(self.right / n, 4),
+                            "unknown": round(self.unknown / n, 4),
+                            "wrong": round(self.wrong / n, 4)},
+            "rate_error": None if not len(err) else {
+                "median": round(float(np.median(err)), 4),
+                "p95": round(float(np.percentile(err, 95)), 4),
+                "n": int(len(err))},
+        }
+
+
+def score_events(truth: list[TruthEvent], detected: Iterable[tuple[str, float]], *,
+                 early_s: float = 1.0, late_s: float = 6.0) -> Score:
+    """Match detected (kind, time) events to the truth, in time order."""
+    sc = Score(truth=list(truth))
+    pending = sorted(detected, key=lambda e: e[1])
+    used = [False] * len(pending)
+    for ev in sc.truth:
+        for i, (kind, t) in enumerate(pending):
+            if not used[i] and kind == ev.kind and ev.t_s - early_s <= t <= ev.t_s + late_s:
+                used[i] = True
+                sc.hits.append((ev, t - ev.t_s))
+                break
+        else:
+            sc.missed.append(ev)
+    sc.false = [pending[i] for i in range(len(pending)) if not used[i]]
+    return sc
+
+
+def score_state(sc: Score, t_s: float, rate_hz: float, direction: str,
+                rotation: str | None, est_rate_hz: float | None, *, ref_sign: int,
+                moving_hz: float = MOVING_HZ, lag_s: float = 0.0) -> None:
+    """Add one published state at time ``t_s`` to ``sc``.
+
+    ``rate_hz`` is the true signed rate (+ ccw); ``ref_sign`` the reference's own sign
+    (+1 ccw, -1 cw), so that same/reversed can be turned into a signed claim.
+    """
+    claim: int | None = {"same": ref_sign, "reversed": -ref_sign, "stopped": 0}.get(direction)
+    if claim is None:
+        sc.unknown += 1
+        return
+    true = 0 if rate_hz == 0.0 else (1 if rate_hz > 0 else -1)
+    if abs(rate_hz) >= moving_hz or rate_hz == 0.0:
+        ok = claim == true
+    else:                                    # slow, in a transition
+        ok = claim in (0, true)
+    if ok:
+        sc.right += 1
+    else:
+        sc.wrong += 1
+    if ok and claim != 0 and abs(rate_hz) >= moving_hz and est_rate_hz is not None \
+            and math.isfinite(est_rate_hz):
+        sc.rate_errors.append(abs(est_rate_hz - abs(rate_hz)) / abs(rate_hz))

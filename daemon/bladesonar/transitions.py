@@ -1,0 +1,142 @@
+"""The running answer as a state machine: per-pulse decisions in, a state a subscriber can
+trust and confirmed events out (pure, no I/O).
+
+The decision of one window (:mod:`dsp.decide`) can flicker: a weak window is *unknown*, a
+spin-down passes through rates too slow to tell a direction, a reversal through zero has
+an instant at rest. Subscribers act on events, and a false event is worse than a late one,
+so the state is a small machine with three known kinds, each entered only once its
+evidence has held for a while:
+
+* ``stopped``: the short motion meter has seen no change beyond noise over its window
+  and for ``stop_confirm_s`` more (a fan reversed through zero passes slowly through
+  rest, but not for that long);
+* ``turning`` one way or the other (``same`` / ``reversed`` relative to the reference):
+  a confident track at or above ``rate_floor_hz`` for ``confirm_s``; a *new* direction
+  (a start, a reversal) needs ``change_factor`` times the floor, since the end of a
+  spin-down leaves slow, shaky tracks of either sign;
+* everything else is ``unknown`` and leaves the last known state in place.
+
+Events fire only on a change of the *known* state: ``started`` (stopped -> turning),
+``stopped`` (turning -> stopped), ``reversed`` (turning one way -> the other, whatever
+unknown stretch lay between, which is how a real fan reverses: through zero). The first
+known state fires nothing. Both the daemon and ``analyze --track`` run this same code.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, replace
+
+from .dsp.decide import Decision
+
+
+class Direction(str, enum.Enum):
+    """Values of the answer's ``direction`` (relative to the reference's own)."""
+
+    SAME = "same"
+    REVERSED = "reversed"
+    STOPPED = "stopped"
+    UNKNOWN = "unknown"
+
+
+#: Event kinds about the fan's motion (the daemon adds ``reference_missing``).
+MOTION_EVENTS = ("started", "stopped", "reversed")
+
+
+@dataclass(frozen=True)
+class TransitionSettings:
+    """Tuning of :class:`Transitions` (config ``tracking``)."""
+
+    rate_floor_hz: float = 0.05
+    confirm_s: float = 0.5
+    stop_confirm_s: float = 0.75
+    change_factor: float = 2.0
+
+
+@dataclass(frozen=True)
+class Event:
+    """A confirmed transition; ``t_s`` is the stream time of the pulse that confirmed it."""
+
+    kind: str
+    t_s: float
+    pulse: int
+    direction: str
+    rotation: str | None
+    rate_hz: float | None
+
+    def details(self) -> dict:
+        """The event's payload details (what MQTT subscribers get)."""
+        return {"direction": self.direction, "rotation": self.rotation,
+                "rate_hz": None if self.rate_hz is None or not math.isfinite(self.rate_hz)
+                else round(float(self.rate_hz), 5)}
+
+
+def _kind(direction: str) -> str | None:
+    """The known kind of a direction: 'stopped', '+', '-', or None for unknown."""
+    return {"stopped": "stopped", "same": "+", "reversed": "-"}.get(direction)
+
+
+class Transitions:
+    """Feed one decision per pulse to :meth:`step`; it returns the state to publish and
+    the events confirmed by that pulse.
+
+    Parameters
+    ----------
+    settings : TransitionSettings
+    prf_hz : float
+        Pulses per second (confirmation times are counted in pulses).
+    """
+
+    def __init__(self, settings: TransitionSettings, prf_hz: float) -> None:
+        self.settings = settings
+        self._confirm = max(int(round(settings.confirm_s * prf_hz)), 1)
+        self._stop_confirm = max(int(round(settings.stop_confirm_s * prf_hz)), 1)
+        self.known: str | None = None        # confirmed kind: 'stopped', '+', '-'
+        self.known_decision: Decision | None = None
+        self._cand: str | None = None
+        self._cand_n = 0
+        self.events: list[Event] = []        # all events so far (the caller may clear)
+
+    @property
+    def stopped(self) -> bool:
+        """The confirmed state is stopped (the static-room estimate then holds still)."""
+        return self.known == "stopped"
+
+    def step(self, t_s: float, pulse: int, d: Decision) -> tuple[Decision, list[Event]]:
+        """One pulse's decision in; (the state to publish, events confirmed now) out."""
+        cand = _kind(d.direction)
+        slow = self.settings.change_factor * self.settings.rate_floor_hz
+        if cand in ("+", "-") and cand != self.known and not (d.rate_hz or 0.0) >= slow:
+            # a new direction (a start, a reversal) is taken only from a rate clearly above
+            # the floor: the end of a spin-down leaves slow, shaky tracks of either sign
+            d = replace(d, direction=Direction.UNKNOWN.value, rotation=None,
+                        reason=f"turning slowly ({d.rate_hz or 0.0:.3f} Hz < {slow:g} Hz "
+                               f"needed for a new direction): {d.reason}")
+            cand = None
+        if cand == self._cand:
+            self._cand_n += 1
+        else:
+            self._cand, self._cand_n = cand, 1
+        fired: list[Event] = []
+        if cand is None:
+            return d, fired
+        need = self._stop_confirm if cand == "stopped" else self._confirm
+        if cand != self.known:
+            if self._cand_n < need:
+                what = "a stop" if cand == "stopped" else f"turning {d.direction}"
+                return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
+                               confidence=min(d.confidence, 0.5),
+                               reason=f"confirming {what} ({self._cand_n} of {need} "
+                                      f"pulses): {d.reason}"), fired
+            before = self.known
+            self.known = cand
+            if before is not None:
+                kind = ("stopped" if cand == "stopped" else
+                        "started" if before == "stopped" else "reversed")
+                ev = Event(kind, float(t_s), int(pulse), d.direction, d.rotation,
+                           None if cand == "stopped" else d.rate_hz)
+                fired.append(ev)
+                self.events.append(ev)
+        self.known_decision = d
+        return d, fired
