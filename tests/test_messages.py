@@ -24,7 +24,8 @@ def cfg_with(**mqtt):
 def live_estimate() -> dict:
     """What LiveAnalyzer.estimate() returns: Decision.as_dict() plus the live fields."""
     d = Decision("reversed", "cw", -0.70069, 0.35036, 21.021, 0.9718,
-                 "relative rate -0.7007 +- 0.0208").as_dict()
+                 "relative rate -0.7007 +- 0.0208", rate_state="changing",
+                 rate_change_hz_s=-0.04512).as_dict()
     d.update(rotating=True, window_s=4.0, reference="0123456789ab")
     return d
 
@@ -98,7 +99,8 @@ def test_state_payload_from_a_live_estimate():
     assert list(p) == [*M.STATE_KEYS, "reason", "time"]
     assert p == {
         "direction": "reversed", "rotation": "cw", "rotating": True, "rate_hz": 0.35036,
-        "rpm": 21.021, "relative_rate": -0.70069, "confidence": 0.9718, "window_s": 4.0,
+        "rpm": 21.021, "relative_rate": -0.70069, "rate_state": "changing",
+        "rate_change_hz_s": -0.0451, "confidence": 0.9718, "window_s": 4.0,
         "reference": "0123456789ab", "status": "ok",
         "reason": "relative rate -0.7007 +- 0.0208", "time": "2023-11-14T22:13:20.250+00:00"}
 

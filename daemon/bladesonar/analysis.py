@@ -38,10 +38,6 @@ from .transitions import Event, Transitions, TransitionSettings
 STILL_WINDOW_S = 1.5
 SLOW_FACTOR = 100.0
 STILL_BAND = 0.35
-#: Correlation of the running static pulse with the reference's that shows the same room.
-ROOM_MATCH = 0.5
-#: Fewest pulses the accepted share of a new track is judged on.
-MIN_TRACK_PULSES = 8
 
 #: Version of the reference contents; bump when the table's meaning changes.
 REFERENCE_VERSION = 1
@@ -520,22 +516,8 @@ class PulseAnalyzer:
         # changes between pulses, lag-1 differences of raw pulses are pure noise
         st = self.static.mean
         scene = float(st @ st) / self._noise if self._noise > 0 else float("nan")
-        # a gate whose static part is the reference's own room holds more than noise, even
-        # when its echoes are weak next to the noise of one pulse (a fan at rest from the
-        # start at 10 dB was 'nothing but noise'); the running mean averages the noise down
-        rm = self.ref.mean_pulse
-        den = math.sqrt(float(st @ st) * float(rm @ rm))
-        if den > 0 and float(st @ rm) / den >= ROOM_MATCH:
-            scene = math.inf
-        # the share accepted counts the current track's pulses only: a track that locked a
-        # second ago is not judged by the pulses before it (a start, a reversal)
-        since = self.tracker.locked_k if self.tracker.locked else None
-        recent = self._recent
-        if since is not None:
-            mine = [r for r in recent if r[0] > since]
-            recent = mine if len(mine) >= MIN_TRACK_PULSES else recent[-MIN_TRACK_PULSES:]
-        acc = np.array([r[1] for r in recent], dtype=np.float64)
-        qual = np.array([r[2] for r in recent], dtype=np.float64)
+        acc = np.array([r[1] for r in self._recent], dtype=np.float64)
+        qual = np.array([r[2] for r in self._recent], dtype=np.float64)
         # share of the informative matches that the track accepted, each weighted like the
         # filter weighs it (1 / measurement variance, i.e. quality squared)
         wq = qual * qual
