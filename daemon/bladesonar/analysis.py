@@ -342,8 +342,9 @@ class PulseAnalyzer:
         # fan at the reference rate called stopped in 39 of 120 trials): such a window
         # gives no stopped verdict
         self._lags_short = self.motion.max_lag < math.ceil(1.2 / self.ref.cycles_per_pulse)
-        # the fan coming to rest must show within seconds: a short meter on the raw pulses
-        # (the static-room estimate subtracted from them would itself change as it adapts)
+        # the fan coming to rest must show within seconds: a short meter on envelope
+        # features of the pulses minus a slow static estimate (the 3 s one adapts to a
+        # stopped fan, which itself looks like motion), band-limited (process())
         short = max(int(round(STILL_WINDOW_S * self.cfg.prf_hz)), 8)
         self.still = MotionMeter(self.ref.mean_pulse.shape[0], short,
                                  max_lag=max(3, min(lags, short // 2)))
@@ -501,11 +502,8 @@ class PulseAnalyzer:
     def _clear_accel(self) -> float:
         """The tracked acceleration beyond twice its standard deviation (0 when it could be
         noise), cycles per pulse per pulse."""
-        tr = self.tracker
-        if not tr.locked or len(tr.x) < 3:
-            return 0.0
-        a, sd = abs(float(tr.x[2])), math.sqrt(max(float(tr.P[2, 2]), 0.0))
-        return max(a - 2.0 * sd, 0.0)
+        a, sd = self.tracker.accel
+        return max(abs(a) - 2.0 * sd, 0.0) if math.isfinite(sd) else 0.0
 
     def decision(self) -> Decision:
         """The answer for the last ``window`` pulses."""
@@ -527,11 +525,10 @@ class PulseAnalyzer:
         rate = float(x[1]) if locked else float("nan")
         sd = math.sqrt(max(float(self.tracker.P[1, 1]), 0.0)) if locked else float("nan")
         prf = self.cfg.prf_hz
-        accel = float(x[2]) * prf if locked and len(x) == 3 else 0.0
-        accel_sd = math.sqrt(max(float(self.tracker.P[2, 2]), 0.0)) * prf \
-            if locked and len(x) == 3 else math.inf
+        accel, accel_sd = self.tracker.accel
         still, _ = self.still.statistic()
-        return decide(still=still, accel=accel, accel_std=accel_sd,rate=rate, rate_std=sd, locked=locked,
+        return decide(still=still, accel=accel * prf, accel_std=accel_sd * prf,
+                      rate=rate, rate_std=sd, locked=locked,
                       accepted=accepted,
                       quality=float(qual.mean()) if len(qual) else 0.0,
                       motion=motion, scene=scene,

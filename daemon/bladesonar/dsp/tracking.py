@@ -73,6 +73,15 @@ def kalman_predict(x: np.ndarray, P: np.ndarray, q: float, steps: int = 1,
         Acceleration noise variance per pulse (3-state model only).
     """
     dim = len(x)
+    if dim == 2:
+        # the default tracker's per-pulse path: closed forms, no matrix products
+        n = float(steps)
+        ph, w = float(x[0]), float(x[1])
+        p00, p01, p11 = float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
+        a00 = p00 + 2 * n * p01 + n * n * p11 + q * n ** 3 / 3.0
+        a01 = p01 + n * p11 + q * n * n / 2.0
+        return (np.array([(ph + n * w) % 1.0, w]),
+                np.array([[a00, a01], [a01, p11 + q * n]]))
     F = transition(steps, dim)
     xn = F @ np.asarray(x, dtype=np.float64)
     xn[0] %= 1.0
@@ -91,6 +100,15 @@ def kalman_update(x: np.ndarray, P: np.ndarray, z: float, r: float
     nu, s = innovation(x, P, z, r)
     if not s > 0:
         return x, P
+    if len(x) == 2:
+        p00, p01, p11 = float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
+        k0, k1 = p00 / s, p01 / s
+        a, c = 1.0 - k0, -k1
+        n00 = a * a * p00 + k0 * k0 * r
+        n01 = a * (c * p00 + p01) + k0 * k1 * r
+        n11 = c * c * p00 + 2 * c * p01 + p11 + k1 * k1 * r
+        return (np.array([(float(x[0]) + k0 * nu) % 1.0, float(x[1]) + k1 * nu]),
+                np.array([[n00, n01], [n01, n11]]))
     K = P[:, 0] / s
     # (I - K H) P (I - K H)^T + K r K^T with H = [1, 0, ...]
     A = np.eye(len(x))
@@ -215,8 +233,6 @@ class TrackState:
     locked: bool
     outlier: bool
     coherence: float
-    accel: float = 0.0
-    accel_std: float = 0.0
 
 
 @dataclass
@@ -246,6 +262,14 @@ class Tracker:
     @property
     def locked(self) -> bool:
         return self.x is not None
+
+    @property
+    def accel(self) -> tuple[float, float]:
+        """(rate change per pulse, its standard deviation), cycles per pulse^2; (0, inf)
+        without a lock or in the constant-rate model."""
+        if self.x is None or len(self.x) < 3:
+            return 0.0, math.inf
+        return float(self.x[2]), math.sqrt(max(float(self.P[2, 2]), 0.0))
 
     def r(self, quality: float) -> float:
         """Measurement variance of a match of this quality."""
@@ -320,9 +344,7 @@ class Tracker:
         if self.x is None:
             return TrackState(int(k), float(z), float(quality), float("nan"), float("nan"),
                               float("nan"), False, outlier, self.coherence)
-        acc, acc_sd = (float(self.x[2]), math.sqrt(max(float(self.P[2, 2]), 0.0))) \
-            if len(self.x) == 3 else (0.0, 0.0)
         return TrackState(int(k), float(z), float(quality), float(self.x[0]), float(self.x[1]),
                           math.sqrt(max(float(self.P[1, 1]), 0.0)), True, outlier,
-                          self.coherence, acc, acc_sd)
+                          self.coherence)
 
