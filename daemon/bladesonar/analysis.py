@@ -228,9 +228,9 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
 # Analysis
 
 
-#: Acceleration noise of the tracker's third state, as a share of the steepest ramp
-#: (tracking.max_ramp_hz_s) per half second.
-ACCEL_NOISE = 0.2
+#: Acceleration noise of the rate follower, as a share of the steepest ramp
+#: (tracking.max_ramp_hz_s) per half second: a ramp may start within half a second.
+ACCEL_NOISE = 1.0
 
 
 def tracker_settings(cfg: Config, ref: Reference) -> TrackerSettings:
@@ -522,12 +522,12 @@ class PulseAnalyzer:
         accepted = float((acc * wq).sum() / wq.sum()) if wq.sum() > 1e-12 else 0.0
         x = self.tracker.x
         locked = x is not None
-        rate = float(x[1]) if locked else float("nan")
-        sd = math.sqrt(max(float(self.tracker.P[1, 1]), 0.0)) if locked else float("nan")
+        rate, sd = self.tracker.rate
         prf = self.cfg.prf_hz
-        accel, accel_sd = self.tracker.accel
+        accel, _ = self.tracker.accel
         still, _ = self.still.statistic()
-        return decide(still=still, accel=accel * prf, accel_std=accel_sd * prf,
+        return decide(still=still, accel=accel * prf,
+                      changing_odds=self.tracker.follower_weight,
                       rate=rate, rate_std=sd, locked=locked,
                       accepted=accepted,
                       quality=float(qual.mean()) if len(qual) else 0.0,

@@ -114,11 +114,11 @@ class TrackingSettings:
     rate_noise: float = opt(0.0003, "rate random walk per pulse (standard deviation, in "
                             "reference cycles per pulse): how fast the fan may speed up or "
                             "slow down", lo=0.0, hi=0.5)
-    max_ramp_hz_s: float = opt(0.0, "experimental: above 0 the tracker also carries the "
-                               "rate's change (steepest ramp, e.g. 0.3) and follows spin-ups "
-                               "and spin-downs without lag, but is weaker at rates near p/q "
-                               "blade period per pulse; 0: constant-rate model", lo=0.0,
-                               hi=100.0, unit="Hz/s")
+    max_ramp_hz_s: float = opt(0.15, "steepest speed ramp followed without lag: a second "
+                               "filter carrying the rate's change runs beside the "
+                               "constant-rate track and gives the published rate (a fan "
+                               "spinning up or down); 0: the constant-rate track alone",
+                               lo=0.0, hi=100.0, unit="Hz/s")
     meas_sigma: float = opt(0.02, "phase noise of a perfect match, in blade periods; scaled "
                             "by 1/match quality", lo=1e-6, hi=0.5)
     gate_sigma: float = opt(4.0, "innovation gate: matches further than this many standard "

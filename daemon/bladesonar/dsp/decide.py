@@ -173,7 +173,7 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
            motion: float, scene: float, ref_cycles_per_pulse: float, ref_rate_hz: float,
            ref_direction: str = "unknown", alias_gap: float = math.inf,
            alias_note: str = "", still: float = math.nan, accel: float = 0.0,
-           accel_std: float = math.inf,
+           changing_odds: float = 0.0,
            settings: DecideSettings = DecideSettings()) -> Decision:
     """Direction and rate of one window.
 
@@ -205,9 +205,12 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         Below ``alias_margin`` the rate is ambiguous (*unknown*, the note is the reason,
         the confidence scaled below ``min_confidence``); a note on a trusted rate becomes
         a warning (the track was moved off an alias).
-    accel, accel_std : float
-        Tracked change of the rate per second (reference cycles per pulse, per second) and
-        its standard deviation: the rate is 'changing' when it is clearly not zero.
+    accel : float
+        Tracked change of the rate per second (reference cycles per pulse, per second).
+    changing_odds : float
+        Probability (0..1) that the rate is changing, i.e. the weight of the changing-rate
+        model over the constant-rate one on the recent matches (:class:`tracking.Tracker`):
+        above 1/2, with a change of at least ``changing_hz_s``, the rate is 'changing'.
 
     Notes
     -----
@@ -216,7 +219,8 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     """
     s = settings
     warnings: list[str] = []
-    if math.isfinite(motion) and motion < s.motion_threshold and not (scene >= s.scene_threshold):
+    if math.isfinite(motion) and motion < s.motion_threshold and not (scene >= s.scene_threshold) \
+            and not (still >= s.motion_threshold):
         return Decision("unknown", None, None, None, None, 0.0,
                         "nothing but noise in the range gate", warnings)
     turning = locked and math.isfinite(rate) and ref_cycles_per_pulse > 0
@@ -271,9 +275,8 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     # the rate's change in Hz/s (sign: + when the fan speeds up)
     hz_per = ref_rate_hz / ref_cycles_per_pulse           # Hz per (cycle per pulse)
     change = accel * hz_per * (1.0 if rate >= 0 else -1.0)
-    change_sd = accel_std * hz_per
     rate_state = "changing" if (abs(change) >= s.changing_hz_s and
-                                abs(change) > 2.0 * change_sd) else "settled"
+                                changing_odds > 0.5) else "settled"
     same = rel > 0
     direction = "same" if same else "reversed"
     rotation = None

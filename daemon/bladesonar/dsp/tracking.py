@@ -26,6 +26,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+#: Pulses over which the track and the rate follower are compared (forgetting).
+FOLLOW_MEMORY = 24.0
+
+
 def wrap(d: float | np.ndarray) -> float | np.ndarray:
     """Wrap a phase difference (cycles) into [-1/2, 1/2)."""
     return (np.asarray(d) + 0.5) % 1.0 - 0.5 if isinstance(d, np.ndarray) else (
@@ -202,11 +206,14 @@ class TrackerSettings:
     min_coherence : float
         Coherence needed to lock.
     q_accel : float
-        Acceleration random-walk variance per pulse, (cycles/pulse^2)^2. Above 0 the
-        filter carries a third state, the rate's change per pulse, so that a fan speeding
-        up or slowing down is followed without lag; 0 keeps the constant-rate model.
+        Acceleration random-walk variance per pulse, (cycles/pulse^2)^2, of the rate
+        follower. Above 0 a second, three-state filter (phase, rate, rate change per
+        pulse) runs beside the constant-rate track on the matches the track accepts, so
+        that a fan speeding up or slowing down is followed without lag (the match quality
+        drops over part of each blade period in many rooms, and a constant-rate model
+        coasts through that gap on the old rate); 0: no follower.
     max_accel : float
-        Largest |acceleration| a new track starts with as uncertainty (cycles/pulse^2).
+        Largest |acceleration| the follower starts with as uncertainty (cycles/pulse^2).
     """
 
     max_rate: float
@@ -254,6 +261,9 @@ class Tracker:
     start_k: int | None = None   # first pulse of the matches the current track began from
     locked_k: int | None = None  # pulse at which the current track locked
     relocks: int = 0             # moves of the track to another line (alias checks)
+    fx: np.ndarray | None = None  # the rate follower's state (phase, rate, acceleration)
+    fP: np.ndarray | None = None
+    evidence: float = 0.0        # log likelihood ratio follower : track, recent matches
     _recent: deque = field(default_factory=deque)
 
     def __post_init__(self) -> None:
@@ -265,11 +275,50 @@ class Tracker:
 
     @property
     def accel(self) -> tuple[float, float]:
-        """(rate change per pulse, its standard deviation), cycles per pulse^2; (0, inf)
-        without a lock or in the constant-rate model."""
-        if self.x is None or len(self.x) < 3:
+        """The follower's (rate change per pulse, its standard deviation), cycles per
+        pulse^2; (0, inf) without a lock or a follower."""
+        if self.x is None or self.fx is None:
             return 0.0, math.inf
-        return float(self.x[2]), math.sqrt(max(float(self.P[2, 2]), 0.0))
+        return float(self.fx[2]), math.sqrt(max(float(self.fP[2, 2]), 0.0))
+
+    @property
+    def follower_weight(self) -> float:
+        """How much the recent matches favour the follower over the constant-rate track
+        (0..1, a posterior model probability with forgetting)."""
+        if self.fx is None:
+            return 0.0
+        e = max(min(self.evidence, 50.0), -50.0)
+        return 1.0 / (1.0 + math.exp(-e))
+
+    @property
+    def rate(self) -> tuple[float, float]:
+        """The rate to report and its standard deviation (cycles per pulse): the track's
+        and the follower's, weighed by how well each predicted the recent matches (a
+        steady fan: the track's, which is quieter; a ramp: the follower's, which coasts
+        through the blind part of a blade period on the rate's change)."""
+        if self.x is None:
+            return float("nan"), float("nan")
+        w = self.follower_weight
+        if w <= 0.0:
+            return float(self.x[1]), math.sqrt(max(float(self.P[1, 1]), 0.0))
+        rate = w * float(self.fx[1]) + (1.0 - w) * float(self.x[1])
+        var = w * float(self.fP[1, 1]) + (1.0 - w) * float(self.P[1, 1]) + \
+            w * (1.0 - w) * (float(self.fx[1]) - float(self.x[1])) ** 2
+        return rate, math.sqrt(max(var, 0.0))
+
+    def _follow_from_track(self) -> None:
+        """(Re)start the follower on the track's line, its acceleration unknown up to the
+        steepest ramp."""
+        st = self.settings
+        if st.q_accel <= 0 or self.x is None:
+            self.fx = self.fP = None
+            return
+        self.fx = np.array([float(self.x[0]), float(self.x[1]), 0.0])
+        P = np.zeros((3, 3))
+        P[:2, :2] = self.P
+        P[2, 2] = st.max_accel ** 2
+        self.fP = P
+        self.evidence = 0.0
 
     def r(self, quality: float) -> float:
         """Measurement variance of a match of this quality."""
@@ -289,18 +338,13 @@ class Tracker:
         var = min(max(-2.0 * math.log(max(coh, 1e-9)) / (2 * math.pi) ** 2, 1e-8), 0.1)
         n = float(len(k))
         span = max(float(k[-1] - k[0]), 1.0)
-        if st.q_accel > 0:
-            self.x = np.array([phase, rate, 0.0])
-            # the start fits a constant rate; a fan on a ramp has some acceleration in it
-            self.P = np.diag([4.0 * var / n, 12.0 * var / (n * span * span)
-                              + (st.max_accel * span / 2.0) ** 2, st.max_accel ** 2])
-        else:
-            self.x = np.array([phase, rate])
-            self.P = np.array([[4.0 * var / n, 0.0], [0.0, 12.0 * var / (n * span * span)]])
+        self.x = np.array([phase, rate])
+        self.P = np.array([[4.0 * var / n, 0.0], [0.0, 12.0 * var / (n * span * span)]])
         self.last_k = int(k[-1])
         self.start_k = int(k[0])
         self.locked_k = int(k[-1])
         self.outlier_run = 0
+        self._follow_from_track()
         return True
 
     def relock(self, rate: float, phase: float, k: int) -> None:
@@ -310,8 +354,7 @@ class Tracker:
             return
         self.x = self.x.copy()
         self.x[0], self.x[1] = float(phase) % 1.0, float(rate)
-        if len(self.x) == 3:
-            self.x[2] = 0.0    # the new line is a constant-rate fit
+        self._follow_from_track()
         self.last_k = int(k)
         self.relocks += 1
         self.outlier_run = 0
@@ -325,7 +368,10 @@ class Tracker:
             self._init()
         else:
             steps = max(int(k) - int(self.last_k), 1)
-            self.x, self.P = kalman_predict(self.x, self.P, st.q_rate, steps, st.q_accel)
+            self.x, self.P = kalman_predict(self.x, self.P, st.q_rate, steps)
+            if self.fx is not None:
+                self.fx, self.fP = kalman_predict(self.fx, self.fP, st.q_rate, steps,
+                                                  st.q_accel)
             self.last_k = int(k)
             r = self.r(quality)
             nu, s = innovation(self.x, self.P, z, r)
@@ -335,9 +381,15 @@ class Tracker:
                 self.outliers += 1
                 self.outlier_run += 1
                 if self.outlier_run >= st.reacquire_after:
-                    self.x = None
+                    self.x = self.fx = self.fP = None
                     self._init()
             else:
+                if self.fx is not None:
+                    fnu, fs = innovation(self.fx, self.fP, z, r)
+                    # log N(fnu; 0, fs) - log N(nu; 0, s), with forgetting
+                    ll = 0.5 * (math.log(s / fs) + nu * nu / s - fnu * fnu / fs)
+                    self.evidence += ll - self.evidence / FOLLOW_MEMORY
+                    self.fx, self.fP = kalman_update(self.fx, self.fP, z, r)
                 self.x, self.P = kalman_update(self.x, self.P, z, r)
                 self.outlier_run = 0
                 self.updates += 1

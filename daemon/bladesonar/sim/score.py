@@ -80,6 +80,7 @@ class Score:
     unknown: int = 0
     wrong: int = 0
     rate_errors: list[float] = field(default_factory=list)   # relative, while turning
+    ramp_errors: list[float] = field(default_factory=list)   # the same, while ramping
 
     @property
     def states(self) -> int:
@@ -94,8 +95,11 @@ class Score:
         def stats(xs: Sequence[float]) -> dict | None:
             return None if not xs else {"n": len(xs), "median": round(float(np.median(xs)), 2),
                                         "max": round(float(np.max(xs)), 2)}
+        def pct(xs: Sequence[float]) -> dict | None:
+            return None if not len(xs) else {
+                "median": round(float(np.median(xs)), 4),
+                "p95": round(float(np.percentile(xs, 95)), 4), "n": int(len(xs))}
         n = max(self.states, 1)
-        err = np.asarray(self.rate_errors)
         return {
             "truth_events": len(self.truth), "hits": len(self.hits),
             "false": len(self.false), "missed": len(self.missed),
@@ -106,10 +110,8 @@ class Score:
             "state_share": {"right": round(self.right / n, 4),
                             "unknown": round(self.unknown / n, 4),
                             "wrong": round(self.wrong / n, 4)},
-            "rate_error": None if not len(err) else {
-                "median": round(float(np.median(err)), 4),
-                "p95": round(float(np.percentile(err, 95)), 4),
-                "n": int(len(err))},
+            "rate_error": pct(self.rate_errors),
+            "ramp_rate_error": pct(self.ramp_errors),
         }
 
 
@@ -133,11 +135,15 @@ def score_events(truth: list[TruthEvent], detected: Iterable[tuple[str, float]],
 
 def score_state(sc: Score, t_s: float, rate_hz: float, direction: str,
                 rotation: str | None, est_rate_hz: float | None, *, ref_sign: int,
-                moving_hz: float = MOVING_HZ, lag_s: float = 0.0) -> None:
+                moving_hz: float = MOVING_HZ, lag_s: float = 0.0,
+                ramping: bool = False) -> None:
     """Add one published state at time ``t_s`` to ``sc``.
 
     ``rate_hz`` is the true signed rate (+ ccw); ``ref_sign`` the reference's own sign
     (+1 ccw, -1 cw), so that same/reversed can be turned into a signed claim.
+    ``ramping``: the true rate is changing at ``t_s`` (its rate error also counts among
+    the ramp errors). Rate errors count only states with the right direction (unknown
+    and wrong states are counted as such).
     """
     claim: int | None = {"same": ref_sign, "reversed": -ref_sign, "stopped": 0}.get(direction)
     if claim is None:
@@ -154,4 +160,7 @@ def score_state(sc: Score, t_s: float, rate_hz: float, direction: str,
         sc.wrong += 1
     if ok and claim != 0 and abs(rate_hz) >= moving_hz and est_rate_hz is not None \
             and math.isfinite(est_rate_hz):
-        sc.rate_errors.append(abs(est_rate_hz - abs(rate_hz)) / abs(rate_hz))
+        e = abs(est_rate_hz - abs(rate_hz)) / abs(rate_hz)
+        sc.rate_errors.append(e)
+        if ramping:
+            sc.ramp_errors.append(e)
