@@ -228,6 +228,9 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
 # Analysis
 
 
+#: Pulses between checks of a poorly accepted track (PulseAnalyzer._recheck_track).
+RECHECK_EVERY = 8
+
 #: Acceleration noise of the rate follower, as a share of the steepest ramp
 #: (tracking.max_ramp_hz_s) per half second: a ramp may start within half a second.
 ACCEL_NOISE = 1.0
@@ -385,6 +388,8 @@ class PulseAnalyzer:
             self._ring_k[j] = int(k)
             self._ring_n += 1
             self._check_aliases()
+            if self._ring_n % RECHECK_EVERY == 0:
+                self._recheck_track()
             if self._prev is not None:
                 dd = xv[i] - self._prev
                 e = 0.5 * float(dd @ dd)
@@ -498,6 +503,20 @@ class PulseAnalyzer:
                                f"the reference table about equally (cost gap {v.gap:.2f} < "
                                f"{aliasing.MARGIN:g}); another fan speed, or another "
                                "waveform.pri_samples with a new reference, avoids it")
+
+    def _recheck_track(self) -> None:
+        """A track the good matches mostly reject is given up for a line that fits them
+        (:meth:`Tracker.recheck`), except near p/q cycles per pulse, where the alias check
+        chooses among lines that fit alike."""
+        tr = self.tracker
+        if not tr.locked:
+            return
+        rate = float(tr.x[1])
+        sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
+        span = int(tr.last_k - tr.start_k) + 1 if tr.start_k is not None else self.window
+        if aliasing.near_fractions(rate, span=span, rate_std=sd, accel=self._clear_accel()):
+            return
+        tr.recheck()
 
     def _clear_accel(self) -> float:
         """The tracked acceleration beyond twice its standard deviation (0 when it could be

@@ -9,7 +9,10 @@ evidence has held for a while:
 
 * ``stopped``: the short motion meter has seen no change beyond noise over its window
   and for ``stop_confirm_s`` more (a fan reversed through zero passes slowly through
-  rest, but not for that long);
+  rest, but not for that long). A fan seen slowing down steadily is not called stopped
+  before it could have come back, if it were reversing through zero, to a rate the meter
+  sees (``change_factor`` times the floor) at the same rate of change: a slow reversal
+  (0.06 Hz/s) is below the meter's reach for about a second on each side of zero;
 * ``turning`` one way or the other (``same`` / ``reversed`` relative to the reference):
   a confident track at or above ``rate_floor_hz`` for ``confirm_s``; a *new* direction
   (a start, a reversal) needs ``change_factor`` times the floor, since the end of a
@@ -52,6 +55,9 @@ class TransitionSettings:
     confirm_s: float = 0.5
     stop_confirm_s: float = 0.75
     change_factor: float = 2.0
+    #: longest wait for a slowing fan to show a reversal, and the meter's own lag (s)
+    reversal_guard_s: float = 2.5
+    meter_lag_s: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -96,6 +102,8 @@ class Transitions:
         self.known_decision: Decision | None = None
         self._cand: str | None = None
         self._cand_n = 0
+        self._zero_by: float | None = None   # a slowing fan would pass zero by then (s)
+        self._slowing_hz_s = 0.0
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
     @property
@@ -114,6 +122,7 @@ class Transitions:
                         reason=f"turning slowly ({d.rate_hz or 0.0:.3f} Hz < {slow:g} Hz "
                                f"needed for a new direction): {d.reason}")
             cand = None
+        self._watch_slowing(t_s, d)
         if cand == self._cand:
             self._cand_n += 1
         else:
@@ -123,12 +132,16 @@ class Transitions:
             return d, fired
         need = self._stop_confirm if cand == "stopped" else self._confirm
         if cand != self.known:
-            if self._cand_n < need:
+            guard = self._reversal_guard(t_s) if cand == "stopped" else None
+            if self._cand_n < need or guard is not None:
                 what = "a stop" if cand == "stopped" else f"turning {d.direction}"
+                why = (f"confirming {what} ({min(self._cand_n, need)} of {need} pulses)"
+                       if guard is None else
+                       f"confirming a stop: a fan slowing at {self._slowing_hz_s:.3f} Hz/s "
+                       f"may be reversing through zero (until {guard:.1f} s)")
                 return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
                                confidence=min(d.confidence, 0.5),
-                               reason=f"confirming {what} ({self._cand_n} of {need} "
-                                      f"pulses): {d.reason}"), fired
+                               reason=f"{why}: {d.reason}"), fired
             before = self.known
             self.known = cand
             if before is not None:
@@ -140,3 +153,29 @@ class Transitions:
                 self.events.append(ev)
         self.known_decision = d
         return d, fired
+
+    def _watch_slowing(self, t_s: float, d: Decision) -> None:
+        """Remember when a fan seen slowing down steadily would reach zero; any other
+        turning answer (steady, speeding up) forgets it."""
+        if _kind(d.direction) not in ("+", "-") or d.rate_hz is None:
+            return
+        change = d.rate_change_hz_s
+        if d.rate_state == "changing" and change is not None and change < 0 and \
+                math.isfinite(d.rate_hz):
+            self._zero_by = float(t_s) + float(d.rate_hz) / -float(change)
+            self._slowing_hz_s = -float(change)
+        else:
+            self._zero_by = None
+
+    def _reversal_guard(self, t_s: float) -> float | None:
+        """Until when a stop must wait for a slowing fan to show a reversal (None: no
+        wait): the time it would take, after zero, to reach ``change_factor`` times the
+        floor at its rate of change, plus the meter's lag, at most ``reversal_guard_s``."""
+        st = self.settings
+        if self._zero_by is None or self.known not in ("+", "-"):
+            return None
+        visible = st.change_factor * st.rate_floor_hz
+        wait = min(visible / max(self._slowing_hz_s, 1e-9) + st.meter_lag_s,
+                   st.reversal_guard_s)
+        until = self._zero_by + wait
+        return until if t_s < until else None

@@ -264,10 +264,13 @@ class Tracker:
     fx: np.ndarray | None = None  # the rate follower's state (phase, rate, acceleration)
     fP: np.ndarray | None = None
     evidence: float = 0.0        # log likelihood ratio follower : track, recent matches
+    rechecks: int = 0            # tracks given up because another line fit the matches
     _recent: deque = field(default_factory=deque)
+    _accepted: deque = field(default_factory=deque)   # (weight, accepted) of _recent
 
     def __post_init__(self) -> None:
         self._recent = deque(maxlen=self.settings.init_pulses)
+        self._accepted = deque(maxlen=self.settings.init_pulses)
 
     @property
     def locked(self) -> bool:
@@ -344,8 +347,32 @@ class Tracker:
         self.start_k = int(k[0])
         self.locked_k = int(k[-1])
         self.outlier_run = 0
+        self._accepted.clear()
         self._follow_from_track()
         return True
+
+    def recheck(self) -> bool:
+        """Give up a track that the recent good matches mostly reject when another line
+        fits them well (a lock taken in the middle of a spin-up can settle on a wrong
+        line whose few accepted matches keep it alive for seconds); True if it moved.
+        Not for a rate near p/q cycles per pulse, where several lines fit the matches
+        alike and the alias check (:mod:`aliasing`) decides."""
+        st = self.settings
+        if self.x is None or len(self._accepted) < st.init_pulses:
+            return False
+        wsum = sum(w for w, _ in self._accepted)
+        if not wsum > 1e-12 or sum(w for w, a in self._accepted if a) >= 0.5 * wsum:
+            return False
+        k, z, w = (np.array(v) for v in zip(*self._recent))
+        rate, _, coh = circular_rate_search(k, z, w, st.max_rate)
+        span = max(float(k[-1] - k[0]), 1.0)
+        if coh < st.min_coherence or abs(rate - float(self.x[1])) <= 1.0 / span:
+            return False
+        self.x = self.fx = self.fP = None
+        if self._init():
+            self.rechecks += 1
+            return True
+        return False
 
     def relock(self, rate: float, phase: float, k: int) -> None:
         """Move a locked track to another line (rate, phase at pulse ``k``), keeping its
@@ -354,6 +381,7 @@ class Tracker:
             return
         self.x = self.x.copy()
         self.x[0], self.x[1] = float(phase) % 1.0, float(rate)
+        self._accepted.clear()
         self._follow_from_track()
         self.last_k = int(k)
         self.relocks += 1
@@ -393,6 +421,9 @@ class Tracker:
                 self.x, self.P = kalman_update(self.x, self.P, z, r)
                 self.outlier_run = 0
                 self.updates += 1
+        if self.x is not None:
+            w = max(float(quality), 0.0)
+            self._accepted.append((w * w, not outlier))
         if self.x is None:
             return TrackState(int(k), float(z), float(quality), float("nan"), float("nan"),
                               float("nan"), False, outlier, self.coherence)
