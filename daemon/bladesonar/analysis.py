@@ -329,6 +329,11 @@ class PulseAnalyzer:
     transitions: Transitions = field(init=False)
     state: Decision | None = None
     new_events: list[Event] = field(default_factory=list)
+    #: the decision cadence (tracking.decide_every): features waiting for the meters, and
+    #: pulses since the last decision
+    _pending: list = field(default_factory=list)
+    _since: int = 0
+    decided: Decision | None = None               # the last decision (before the machine)
 
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
@@ -379,10 +384,10 @@ class PulseAnalyzer:
                                            band=STILL_BAND)
         out = []
         fs = self.cfg.audio.sample_rate
+        every = self.cfg.tracking.decide_every
         for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v])):
             st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
-            self.motion.update(feats[i])
-            self.still.update(still_feats[i])
+            self._pending.append((feats[i], still_feats[i]))
             j = self._ring_n % self.window
             self._ring_d[j] = dist[i]
             self._ring_k[j] = int(k)
@@ -400,9 +405,15 @@ class PulseAnalyzer:
             if len(self._recent) > self.window:
                 del self._recent[0]
             t_s = float(edge) / fs
-            d = self.decision()
-            self.state, fired = self.transitions.step(t_s, int(k), d)
-            self.new_events.extend(fired)
+            self._since += 1
+            fired = []
+            if self._since >= every or self.state is None:
+                # counted over all valid pulses, so that the daemon (a pulse at a time)
+                # and analyze (blocks) decide on the same pulses
+                d = self.decided = self.decision()
+                self.state, fired = self.transitions.step(t_s, int(k), d, self._since)
+                self.new_events.extend(fired)
+                self._since = 0
             if rows:
                 row = {"t_s": round(t_s, 4), "pulse": int(k),
                        "phase": round(float(m.phase[i]), 4),
@@ -516,7 +527,9 @@ class PulseAnalyzer:
         span = int(tr.last_k - tr.start_k) + 1 if tr.start_k is not None else self.window
         if aliasing.near_fractions(rate, span=span, rate_std=sd, accel=self._clear_accel()):
             return
-        tr.recheck()
+        if tr.recheck():
+            # the old line's rejections say nothing about the new one
+            self._recent.clear()
 
     def _clear_accel(self) -> float:
         """The tracked acceleration beyond twice its standard deviation (0 when it could be
@@ -524,8 +537,17 @@ class PulseAnalyzer:
         a, sd = self.tracker.accel
         return max(abs(a) - 2.0 * sd, 0.0) if math.isfinite(sd) else 0.0
 
+    def _feed_meters(self) -> None:
+        """The motion meters take the pulses since the last decision in one block."""
+        if self._pending:
+            f, sf = zip(*self._pending)
+            self.motion.update_block(np.stack(f))
+            self.still.update_block(np.stack(sf))
+            self._pending = []
+
     def decision(self) -> Decision:
-        """The answer for the last ``window`` pulses."""
+        """The answer for the last ``window`` pulses (up to the last pulse fed)."""
+        self._feed_meters()
         motion, _ = self.motion.statistic()
         if motion < self.cfg.tracking.motion_threshold and self._lags_short:
             motion = float("nan")   # no verdict on motion (see __post_init__)
@@ -639,7 +661,9 @@ def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
         raise too_few_pulses(n_valid, n_pulses, len(x), pri=pri,
                              sample_rate=cfg.audio.sample_rate, min_pulses=a.min_pulses,
                              dropped=dropped)
-    d = an.decision()
+    # the last decision made (as the daemon's last estimate: at most decide_every - 1
+    # pulses before the end)
+    d = an.decided if an.decided is not None else an.decision()
     if dropped:
         warnings.append(f"{dropped} pulses dropped or corrupt (skipped)")
     if an.last_move is not None and not any("alias" in w for w in d.warnings):

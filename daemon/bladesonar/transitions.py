@@ -111,8 +111,10 @@ class Transitions:
         """The confirmed state is stopped (the static-room estimate then holds still)."""
         return self.known == "stopped"
 
-    def step(self, t_s: float, pulse: int, d: Decision) -> tuple[Decision, list[Event]]:
-        """One pulse's decision in; (the state to publish, events confirmed now) out."""
+    def step(self, t_s: float, pulse: int, d: Decision, pulses: int = 1
+             ) -> tuple[Decision, list[Event]]:
+        """A decision in, standing for the last ``pulses`` pulses (the analysis decides
+        every few pulses); (the state to publish, events confirmed now) out."""
         cand = _kind(d.direction)
         slow = self.settings.change_factor * self.settings.rate_floor_hz
         if cand in ("+", "-") and cand != self.known and not (d.rate_hz or 0.0) >= slow:
@@ -124,9 +126,9 @@ class Transitions:
             cand = None
         self._watch_slowing(t_s, d)
         if cand == self._cand:
-            self._cand_n += 1
+            self._cand_n += pulses
         else:
-            self._cand, self._cand_n = cand, 1
+            self._cand, self._cand_n = cand, pulses
         fired: list[Event] = []
         if cand is None:
             return d, fired
