@@ -10,10 +10,14 @@ import pytest
 
 from bladesonar import config
 from bladesonar.cli import main
-from bladesonar.runtime_report import (Family, Grid, Job, _render, aggregate, envelope, jobs,
-                                       sweep_config)
+from bladesonar.runtime_report import (TRANSITION_TARGETS_S, TRANSITIONS_SCHEDULE, Family,
+                                       Grid, Job, _render, aggregate, aggregate_transitions,
+                                       envelope, jobs, score_transitions, sweep_config,
+                                       transitions_schedule)
 from bladesonar.sim import load_scene
 from bladesonar.sim.render import simulate
+from bladesonar.sim.schedule import parse
+from bladesonar.sim.score import truth_events
 
 GRID = {
     "families": [
@@ -129,3 +133,51 @@ def test_jobs_alternate_direction_and_jitter_the_rate():
     tr = [j.true_ratio for j in js]
     assert all(0.95 <= abs(t) <= 1.05 for t in tr) and len(set(tr)) == 4
     assert Job("x", "a", 4, -2.0, (), (), 3).true_ratio == -2.0
+    t = jobs(Grid(families=(Family("t", ("a",), (4,), (1.0,), (10.0,), (), 2,
+                                   transitions=True),)))
+    assert [(j.transitions, np.sign(j.ratio)) for j in t] == [(True, 1), (True, -1)]
+    with pytest.raises(ValueError, match="exclude"):
+        Family("x", ("a",), (4,), (1.0,), (10.0,), (), 1, reversal=True, transitions=True)
+
+
+def test_transitions_schedule_mirrors_and_scores_against_the_truth():
+    sched, seconds = transitions_schedule(TRANSITIONS_SCHEDULE, -0.5, 0.5)
+    assert sched == "stop:0:6,cw:0.25:14~5,stop:0:14~8,cw:0.25:12~4,ccw:0.25:16~10"
+    assert seconds == 62.0
+    truth = truth_events(parse(sched), seconds)
+    # a cw start passes 0.15 Hz 3 s into its 5 s ramp (0.15 / 0.25 of it); the reversal
+    # through zero passes +0.15 Hz 8 s into its 10 s ramp from -0.25 to +0.25 Hz
+    assert [(e.kind, e.sign) for e in truth] == [("started", -1), ("stopped", 0),
+                                                 ("started", -1), ("reversed", 1)]
+    assert [e.t_s for e in truth] == pytest.approx([9.0, 28.0, 36.4, 54.0], abs=0.01)
+    got = score_transitions(truth, [("started", 9.5), ("reversed", 20.0), ("stopped", 30.0),
+                                    ("reversed", 53.5)])
+    assert got["latency_s"] == {"started": [0.5], "stopped": [2.0], "reversed": [-0.5]}
+    assert got["missed"] == {"started": 1, "stopped": 0, "reversed": 0}
+    assert got["false"] == {"started": 0, "stopped": 0, "reversed": 1}
+    assert got["false_events"] == 1
+
+
+def _trec(snr, lat, missed, false, audio=60.0):
+    kinds = ("started", "stopped", "reversed")
+    return dict(family="transitions", scene="s", blades=4, ratio=1.0, snr_db=snr, seed=1,
+                truth_events={k: len(lat[k]) + missed.get(k, 0) for k in kinds},
+                latency_s=lat, missed={k: missed.get(k, 0) for k in kinds},
+                false={k: false.get(k, 0) for k in kinds}, false_events=sum(false.values()),
+                cpu_s=0.6, audio_s=audio)
+
+
+def test_aggregate_transitions_per_kind():
+    recs = [_trec(10.0, {"started": [0.5, 1.5], "stopped": [2.0], "reversed": []},
+                  {"reversed": 1}, {"stopped": 1}),
+            _trec(10.0, {"started": [1.0, 2.5], "stopped": [4.0], "reversed": [0.2]}, {},
+                  {"reversed": 2})]
+    rows = {r["kind"]: r for r in aggregate_transitions(recs)}
+    st, sp, rv = rows["started"], rows["stopped"], rows["reversed"]
+    assert (st["trials"], st["truth_events"], st["detected"], st["missed"]) == (2, 4, 1.0, 0)
+    assert st["latency_s_median"] == 1.25 and st["latency_s_max"] == 2.5
+    assert st["within_target"] == 0.75                      # 2.5 s is over the 2 s target
+    assert sp["within_target"] == 0.5 and sp["false_events"] == 1
+    assert sp["false_per_trial"] == 0.5 and sp["false_per_hour"] == 30.0   # 1 in 120 s
+    assert rv["detected"] == 0.5 and rv["missed"] == 1 and rv["false_per_hour"] == 60.0
+    assert aggregate(recs) == []                          # not window trials

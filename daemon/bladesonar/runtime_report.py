@@ -25,6 +25,16 @@ error is ``|relative_rate - true ratio| / |true ratio|`` over trials that gave a
 Reversal time: from the true reversal to the first row after which the running answer
 stays on the new direction to the end of the recording (default ``daemon.window_s``).
 Compute time is the process CPU time of ``analyze`` per second of audio.
+
+Transitions
+-----------
+A ``transitions`` family renders ``Grid.transitions_schedule`` per seed (realistic ramps: a
+spin-up from rest, a spin-down to rest, a start, a reversal through zero; rate = the seed's
+ratio times ``ref_rate_hz``, the directions mirrored when the ratio is negative) with
+``Grid.transitions_drift_ppm`` of clock drift, runs ``analyze(track=True)`` (the daemon's
+state machine) per SNR and scores its events with :mod:`bladesonar.sim.score` against the
+schedule's truth events: per kind the latencies of the hits, the missed ones, and the
+false events. The issue's targets are ``TRANSITION_TARGETS_S``.
 """
 
 from __future__ import annotations
@@ -41,8 +51,18 @@ from . import config as _config
 from .analysis import Reference, analyze, build_reference
 from .errors import BladesonarError
 from .sim.render import Simulator
+from .sim.schedule import parse as parse_schedule
+from .sim.score import score_events, truth_events
 
 ALIAS_NOTE = "|rate| >= PRF / (2 K): the blade phase steps half a period or more per pulse"
+
+TRANSITION_KINDS = ("started", "stopped", "reversed")
+#: Latency targets of issue #10 (s after the truth event of sim/score.py: ``started`` and
+#: ``reversed`` when |rate| passes 0.15 Hz, ``stopped`` when the fan comes to rest).
+TRANSITION_TARGETS_S = {"started": 2.0, "stopped": 3.0, "reversed": 2.0}
+#: ``{d}`` the first direction, ``{o}`` the other, ``{r}`` the rate: a spin-up from rest,
+#: a spin-down to rest, a start, a reversal through zero (truth events 6-17 s apart).
+TRANSITIONS_SCHEDULE = "stop:0:6,{d}:{r}:14~5,stop:0:14~8,{d}:{r}:12~4,{o}:{r}:16~10"
 
 
 @dataclass(frozen=True)
@@ -58,6 +78,12 @@ class Family:
     seeds: int
     reversal: bool = False             # a ccw -> cw run instead of windows
     jitter: float = 0.05               # each seed's rate is ratio * (1 + U(-j, j))
+    transitions: bool = False          # Grid.transitions_schedule instead of windows
+
+    def __post_init__(self) -> None:
+        if self.reversal and self.transitions:
+            raise ValueError(f"family {self.name!r}: reversal and transitions exclude each "
+                             "other")
 
 
 @dataclass(frozen=True)
@@ -70,6 +96,8 @@ class Grid:
     reversal_at_s: float = 10.0
     reversal_seconds: float = 20.0
     seed0: int = 1
+    transitions_schedule: str = TRANSITIONS_SCHEDULE
+    transitions_drift_ppm: float = 40.0
 
     @property
     def scenes(self) -> tuple[str, ...]:
@@ -101,6 +129,8 @@ def default_grid(quick: bool = False, prf_hz: float = 44100 / 1297) -> Grid:
             Family("rate_ratio", ("paper-room",), (4,), (0.0, 2.0, 5.0, 9.5), (20.0,),
                    (2.0, 5.0), 2),
             Family("reversal", ("paper-room",), (4,), (1.0,), (20.0,), (), 2, reversal=True),
+            Family("transitions", ("paper-room",), (4,), (1.0,), (10.0, 20.0), (), 2,
+                   transitions=True),
         ), ref_seconds=12.0, reversal_at_s=6.0, reversal_seconds=12.0)
     return Grid(families=(
         Family("window_snr", ("paper-room",), (4,), (1.0,), SNRS, WINDOWS, 24),
@@ -111,6 +141,8 @@ def default_grid(quick: bool = False, prf_hz: float = 44100 / 1297) -> Grid:
         Family("blades", ("paper-room",), (3, 5), (1.0,), (0.0, 10.0, 20.0), WINDOWS, 10),
         Family("rooms", ROOMS[1:], (4,), (1.0,), (0.0, 10.0, 20.0), WINDOWS, 10),
         Family("reversal", ("paper-room",), (4,), (1.0,), SNRS, (), 10, reversal=True),
+        Family("transitions", ("paper-room",), (4,), (1.0,), (0.0, 5.0, 10.0, 20.0, 30.0), (),
+               6, transitions=True),
     ))
 
 
@@ -125,6 +157,7 @@ class Job:
     seed: int
     reversal: bool = False
     jitter: float = 0.0
+    transitions: bool = False
 
     @property
     def true_ratio(self) -> float:
@@ -148,7 +181,7 @@ def jobs(grid: Grid) -> list[Job]:
                         seed = grid.seed0 + i
                         sign = 1.0 if (i % 2 == 0 or f.reversal) else -1.0
                         out.append(Job(f.name, s, k, sign * r, f.snrs_db, f.windows_s, seed,
-                                       f.reversal, f.jitter))
+                                       f.reversal, f.jitter, f.transitions))
     return out
 
 
@@ -181,12 +214,13 @@ def _schedule(rate_hz: float, seconds: float) -> str:
     return f"{'ccw' if rate_hz > 0 else 'cw'}:{abs(rate_hz)}:{seconds}"
 
 
-def _render(scene, cfg, schedule: str, seconds: float, seed: int) -> tuple[np.ndarray,
-                                                                          np.ndarray, float]:
+def _render(scene, cfg, schedule: str, seconds: float, seed: int, drift_ppm: float = 0.0
+            ) -> tuple[np.ndarray, np.ndarray, float]:
     """(clean, unit noise, fan power) of one run: the simulator's noise for seed, scaled to
     sigma = 1, and the power its SNR refers to (so x = clean + sqrt(P / 10^(snr/10)) n)."""
     def run(snr):
-        sim = Simulator(scene, cfg, schedule, snr_db=snr, seed=seed, include_paths=False)
+        sim = Simulator(scene, cfg, schedule, snr_db=snr, seed=seed, include_paths=False,
+                        drift_ppm=drift_ppm)
         x = np.concatenate([c for c, _ in sim.chunks(seconds)])
         return x, sim
     clean, _ = run(None)
@@ -195,6 +229,11 @@ def _render(scene, cfg, schedule: str, seconds: float, seed: int) -> tuple[np.nd
     if not sigma > 0:
         raise BladesonarError("the scene gives no fan echo power inside the gate")
     return clean, (noisy - clean) / sigma, sigma * sigma
+
+
+def _at_snr(clean: np.ndarray, unit: np.ndarray, p_fan: float, snr_db: float) -> np.ndarray:
+    """The recording at ``snr_db``: exactly what the simulator renders at that SNR."""
+    return clean + math.sqrt(p_fan / 10 ** (snr_db / 10)) * unit
 
 
 def _truth_direction(ratio: float, rate_hz: float, alias_hz: float) -> str:
@@ -224,12 +263,14 @@ def run_job(job: Job, scene, cfg: _config.Config, ref: Reference, grid: Grid
     alias = base.prf_hz / (2 * job.blades)
     if job.reversal:
         return _run_reversal(job, sc, base, ref, grid)
+    if job.transitions:
+        return _run_transitions(job, sc, base, ref, grid)
     longest = max(job.windows_s)
     clean, unit, p_fan = _render(sc, base, _schedule(rate, longest), longest, job.seed)
     truth = _truth_direction(job.ratio, rate, alias)
     out = []
     for snr in job.snrs_db:
-        x = clean + math.sqrt(p_fan / 10 ** (snr / 10)) * unit
+        x = _at_snr(clean, unit, p_fan, snr)
         for w in job.windows_s:
             cfg_w = sweep_config(cfg, job.blades, w)
             n = int(round(w * fs))
@@ -261,13 +302,8 @@ def _run_reversal(job: Job, sc, base, ref: Reference, grid: Grid) -> list[dict[s
     cfg = _config.replace(base, analysis={"min_pulses": 16})
     out = []
     for snr in job.snrs_db:
-        x = clean + math.sqrt(p_fan / 10 ** (snr / 10)) * unit
-        t0 = time.process_time()
-        try:
-            _, rows = analyze(x, cfg, ref, track=True)
-        except BladesonarError:
-            rows = []
-        cpu = time.process_time() - t0
+        x = _at_snr(clean, unit, p_fan, snr)
+        rows, cpu = _tracked(x, cfg, ref)
         t = np.array([r["t_s"] for r in rows])
         d = np.array([r["rotation"] or r["direction"] for r in rows])
         after = t >= t_rev
@@ -282,6 +318,59 @@ def _run_reversal(job: Job, sc, base, ref: Reference, grid: Grid) -> list[dict[s
                         detect_s=det, settled_before=bool(before.any() and
                                                           np.all(d[before] == "ccw")),
                         cpu_s=cpu, audio_s=len(x) / base.audio.sample_rate))
+    return out
+
+
+def _tracked(x: np.ndarray, cfg, ref: Reference) -> tuple[list[dict], float]:
+    """The per-pulse rows of ``analyze(track=True)`` (none if it refuses) and its CPU time."""
+    t0 = time.process_time()
+    try:
+        _, rows = analyze(x, cfg, ref, track=True)
+    except BladesonarError:
+        rows = []
+    return rows, time.process_time() - t0
+
+
+def transitions_schedule(template: str, ratio: float, ref_rate_hz: float
+                         ) -> tuple[str, float]:
+    """(schedule, seconds) of a transitions trial: ``{r}`` = |ratio| x the reference rate,
+    ``{d}`` ccw for a positive ratio (cw for a negative one), ``{o}`` the other direction;
+    the length is the sum of the segments."""
+    d, o = ("ccw", "cw") if ratio >= 0 else ("cw", "ccw")
+    sched = template.format(d=d, o=o, r=f"{abs(ratio) * ref_rate_hz:.6g}")
+    return sched, float(sum(seg.seconds for seg in parse_schedule(sched).segments))
+
+
+def score_transitions(truth, events: list[tuple[str, float]]) -> dict[str, Any]:
+    """Per kind: truth events, hit latencies (s, + late), missed; and the false events."""
+    sc = score_events(truth, events)
+    per = {k: sum(1 for e in truth if e.kind == k) for k in TRANSITION_KINDS}
+    return dict(truth_events=per,
+                latency_s={k: [round(v, 3) for v in sc.latencies(k)] for k in TRANSITION_KINDS},
+                missed={k: sum(1 for e in sc.missed if e.kind == k) for k in TRANSITION_KINDS},
+                false={k: sum(1 for kind, _ in sc.false if kind == k)
+                       for k in TRANSITION_KINDS},
+                false_events=len(sc.false),
+                false_detail=[(k, round(t, 2)) for k, t in sc.false])
+
+
+def _run_transitions(job: Job, sc, base, ref: Reference, grid: Grid) -> list[dict[str, Any]]:
+    ratio = job.true_ratio
+    sched, total = transitions_schedule(grid.transitions_schedule, ratio, grid.ref_rate_hz)
+    truth = truth_events(parse_schedule(sched), total)
+    clean, unit, p_fan = _render(sc, base, sched, total, job.seed,
+                                 drift_ppm=grid.transitions_drift_ppm)
+    out = []
+    for snr in job.snrs_db:
+        x = _at_snr(clean, unit, p_fan, snr)
+        rows, cpu = _tracked(x, base, ref)
+        events = [(r["event"], r["t_s"]) for r in rows if r.get("event")]
+        rec = dict(family=job.family, scene=job.scene, blades=job.blades, ratio=job.ratio,
+                   true_ratio=ratio, rate_hz=abs(ratio) * grid.ref_rate_hz, snr_db=snr,
+                   seed=job.seed, schedule=sched, drift_ppm=grid.transitions_drift_ppm,
+                   cpu_s=cpu, audio_s=len(x) / base.audio.sample_rate)
+        rec.update(score_transitions(truth, events))
+        out.append(rec)
     return out
 
 
@@ -351,6 +440,43 @@ def aggregate_reversals(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
                          settled_before=round(sum(r["settled_before"] for r in g) / len(g),
                                               4)))
     return rows
+
+
+def aggregate_transitions(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per (scene, blades, |ratio|, snr, event kind): detected share, latency
+    median / p95 / max of the hits, false events of that kind per trial and per hour."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in records:
+        if "latency_s" in r:
+            groups.setdefault((r["scene"], r["blades"], abs(r["ratio"]), r["snr_db"]),
+                              []).append(r)
+    rows = []
+    for key in sorted(groups):
+        g = groups[key]
+        audio = sum(r["audio_s"] for r in g)
+        for kind in TRANSITION_KINDS:
+            rows.append(dict(zip(("scene", "blades", "ratio", "snr_db"), key), kind=kind,
+                             **_transition_row(g, kind, audio)))
+    return rows
+
+
+def _transition_row(g: list[dict], kind: str, audio_s: float) -> dict[str, Any]:
+    n_truth = sum(r["truth_events"][kind] for r in g)
+    lat = [v for r in g for v in r["latency_s"][kind]]
+    false = sum(r["false"][kind] for r in g)
+    target = TRANSITION_TARGETS_S[kind]
+    return dict(trials=len(g), truth_events=n_truth,
+                detected=round(len(lat) / n_truth, 4) if n_truth else None,
+                missed=sum(r["missed"][kind] for r in g),
+                latency_s_median=_q(lat, 50), latency_s_p95=_q(lat, 95),
+                latency_s_max=_q(lat, 100), target_s=target,
+                within_target=round(sum(v <= target for v in lat) / n_truth, 4)
+                if n_truth else None,
+                false_events=false, false_per_trial=round(false / len(g), 4),
+                false_per_hour=round(3600 * false / audio_s, 2) if audio_s else None,
+                audio_s=round(audio_s, 3),
+                cpu_per_audio_s=round(sum(r["cpu_s"] for r in g) / audio_s, 6)
+                if audio_s else None)
 
 
 def envelope(rows: list[dict[str, Any]], target: float = 0.99) -> dict[str, Any]:
