@@ -169,6 +169,7 @@ def markdown(rep: dict[str, Any], *, images: dict[str, str] | None = None) -> st
                       "–" if r["detect_s_p95"] is None else f"{r['detect_s_p95']:.2f}"]
                      for r in rv])
         L.append("")
+    L += transitions_section(rep.get("transitions", []), meta)
     refs = rep.get("references", {})
     if refs:
         L.append("## References used")
@@ -179,3 +180,60 @@ def markdown(rep: dict[str, Any], *, images: dict[str, str] | None = None) -> st
                      for k, v in refs.items()])
         L.append("")
     return "\n".join(L) + "\n"
+
+
+_KINDS = ("started", "stopped", "reversed")
+
+
+def _latency(r: dict[str, Any]) -> str:
+    """'median / p95' of the hits, bold when the p95 is over the target."""
+    if r["latency_s_median"] is None:
+        return "–"
+    s = f"{r['latency_s_median']:.2f} / {r['latency_s_p95']:.2f}"
+    return f"**{s}**" if r["latency_s_p95"] > r["target_s"] else s
+
+
+def transitions_section(rows: list[dict[str, Any]], meta: dict[str, Any]) -> list[str]:
+    """'Latency of start, stop and reversal against SNR': one table per (scene, blades,
+    ratio), rows SNR, per kind the detected share and the latency median / p95."""
+    if not rows:
+        return []
+    tg = meta.get("transition_targets_s", {})
+    L = ["## Latency of start, stop and reversal against SNR", ""]
+    L.append(f"Each trial is one recording of `{meta.get('transitions_schedule', '?')}` "
+             f"({{r}} = ratio × {meta['ref_rate_hz']:g} Hz with the seed's ±5 % jitter, "
+             "{d} its direction — mirrored on every other seed — and {o} the other; "
+             f"{meta.get('transitions_drift_ppm', 0):g} ppm clock drift): a spin-up from "
+             "rest, a spin-down to rest, a start and a reversal through zero, run through "
+             "`analyze --track` (the daemon's state machine). Its events are scored with "
+             "`sim/score.py` against the schedule's truth: `started` when |rate| first "
+             "reaches 0.15 Hz after a rest, `stopped` when the fan comes to rest (for 2 s "
+             "or more), `reversed` when the new direction reaches 0.15 Hz; an event of the "
+             "same kind from 1 s before to 6 s after is a hit (latency = event − truth, "
+             "negative when early), any other event is false. Targets (issue #10): "
+             + ", ".join(f"`{k}` ≤ {tg[k]:g} s" for k in _KINDS if k in tg)
+             + "; a latency whose 95th percentile misses its target is in bold. Detected = "
+             "hits / truth events; false events are counted per hour of audio.")
+    L.append("")
+    for key in sorted({(r["scene"], r["blades"], r["ratio"]) for r in rows}):
+        g = [r for r in rows if (r["scene"], r["blades"], r["ratio"]) == key]
+        L.append(f"{key[0]}, {key[1]} blades, ratio {key[2]:g}:")
+        L.append("")
+        body = []
+        for snr in sorted({r["snr_db"] for r in g}):
+            by = {r["kind"]: r for r in g if r["snr_db"] == snr}
+            any_ = next(iter(by.values()))
+            line = [f"{snr:g} dB", str(any_["trials"])]
+            for k in _KINDS:
+                r = by.get(k)
+                line += ["–", "–"] if r is None or r["detected"] is None else \
+                    [_pct(r["detected"]) + " %", _latency(r)]
+            false = sum(r["false_events"] for r in by.values())
+            line.append(f"{3600 * false / any_['audio_s']:.0f}" if any_["audio_s"] else "–")
+            body.append(line)
+        head = ["SNR", "trials"]
+        for k in _KINDS:
+            head += [f"{k}: detected", f"{k}: median / p95 (s)"]
+        L += _table(head + ["false events / h"], body)
+        L.append("")
+    return L

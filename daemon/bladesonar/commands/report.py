@@ -14,10 +14,15 @@ import sys
 
 EPILOG = """\
 The full sweep (observation window 0.25-30 s, SNR -5..30 dB, rate ratios 0..9, 3-5 blades,
-4 rooms, reversals) takes a few minutes on 2 cores; --quick is a small version for CI.
+4 rooms, reversals, and the latency of started/stopped/reversed events on ramped
+transitions at 0-30 dB) takes a few minutes on 2 cores; --quick is a small version for CI.
 A custom sweep: --grid GRID.json with {"families": [{"name": ..., "scenes": [...],
 "blades": [...], "ratios": [...], "snrs_db": [...], "windows_s": [...], "seeds": N,
-"reversal": false}, ...], "ref_seconds": 20, ...} (fields of runtime_report.Grid).
+"reversal": false, "transitions": false}, ...], "ref_seconds": 20, ...} (fields of
+runtime_report.Grid). A family with "transitions": true ignores windows_s and runs
+"transitions_schedule" (default "stop:0:6,{d}:{r}:14~5,stop:0:14~8,{d}:{r}:12~4,
+{o}:{r}:16~10": {r} = ratio x ref_rate_hz, {d} its direction, {o} the other) with
+"transitions_drift_ppm" (default 40) of clock drift, scoring each event against the truth.
 
 examples:
   bladesonar report --quick --out out/report
@@ -27,9 +32,11 @@ examples:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="accuracy against observation time, SNR, rate, blades "
-                       "and room, on simulated scenes (Markdown, JSON, PNG)",
+                       "and room, and event latency against SNR, on simulated scenes "
+                       "(Markdown, JSON, PNG)",
                        description="Measure direction accuracy, rate error, reversal "
-                       "detection time and compute time of the analysis on simulated "
+                       "detection time, the latency of started/stopped/reversed events "
+                       "against SNR and compute time of the analysis on simulated "
                        "recordings with known truth.", epilog=EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the report files")
@@ -116,8 +123,9 @@ def run(args: argparse.Namespace) -> int:
     from .. import config
     from ..errors import ConfigError
     from ..progress import Progress
-    from ..runtime_report import (aggregate, aggregate_reversals, default_grid, envelope,
-                                  jobs, limit_notes, refusal_notes)
+    from ..runtime_report import (TRANSITION_TARGETS_S, aggregate, aggregate_reversals,
+                                  aggregate_transitions, default_grid, envelope, jobs,
+                                  limit_notes, refusal_notes)
     from ..report_text import markdown
     from ..sim import load_scene
 
@@ -165,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
 
     rows = aggregate(records)
     rev = aggregate_reversals(records)
+    trans = aggregate_transitions(records)
     env = envelope(rows)
     cmd = "bladesonar report " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 and \
         sys.argv[1] == "report" else "bladesonar report" + (" --quick" if args.quick else "")
@@ -175,6 +184,9 @@ def run(args: argparse.Namespace) -> int:
                 ref_rate_hz=grid.ref_rate_hz, ref_seconds=grid.ref_seconds,
                 ref_snr_db=grid.ref_snr_db, reversal_at_s=grid.reversal_at_s,
                 reversal_seconds=grid.reversal_seconds, daemon_window_s=cfg.daemon.window_s,
+                transitions_schedule=grid.transitions_schedule,
+                transitions_drift_ppm=grid.transitions_drift_ppm,
+                transition_targets_s=TRANSITION_TARGETS_S,
                 prf_hz=cfg.prf_hz, aliasing_limit_hz_by_blades={
                     str(k): cfg.prf_hz / (2 * k) for k in sorted({j.blades for j in todo})})
     import dataclasses
@@ -182,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
     rep = dict(format="bladesonar-report/1", meta=meta, grid=dataclasses.asdict(grid),
                envelope=env, limits=limit_notes(rows, cfg.prf_hz, cfg.tracking.slew_limit,
                                                 grid.ref_rate_hz) + refusal_notes(records),
-               references=ref_info, rows=rows, reversals=rev)
+               references=ref_info, rows=rows, reversals=rev, transitions=trans)
     images = {}
     if not args.no_plots:
         from ..plots import report as rp
