@@ -37,7 +37,7 @@ from .transitions import Event, Transitions, TransitionSettings
 #: Length of the short motion window that calls a fan at rest, seconds.
 STILL_WINDOW_S = 1.5
 SLOW_FACTOR = 100.0
-STILL_BAND = 0.35
+STILL_BAND = 0.2
 
 #: Version of the reference contents; bump when the table's meaning changes.
 REFERENCE_VERSION = 1
