@@ -55,8 +55,9 @@ class TransitionSettings:
     confirm_s: float = 0.5
     stop_confirm_s: float = 0.75
     change_factor: float = 2.0
-    #: longest wait for a slowing fan to show a reversal, and the meter's own lag (s)
-    reversal_guard_s: float = 2.5
+    #: longest wait (after the meter fell quiet) for a slowing fan to show a reversal,
+    #: and the meter's own lag (s)
+    reversal_guard_s: float = 2.0
     meter_lag_s: float = 0.5
 
 
@@ -103,6 +104,7 @@ class Transitions:
         self._cand: str | None = None
         self._cand_n = 0
         self._zero_by: float | None = None   # a slowing fan would pass zero by then (s)
+        self._quiet_since = 0.0              # when the current candidate state began (s)
         self._slowing_hz_s = 0.0
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
@@ -129,6 +131,7 @@ class Transitions:
             self._cand_n += pulses
         else:
             self._cand, self._cand_n = cand, pulses
+            self._quiet_since = float(t_s)
         fired: list[Event] = []
         if cand is None:
             return d, fired
@@ -157,17 +160,20 @@ class Transitions:
         return d, fired
 
     def _watch_slowing(self, t_s: float, d: Decision) -> None:
-        """Remember when a fan seen slowing down steadily would reach zero; any other
-        turning answer (steady, speeding up) forgets it."""
-        if _kind(d.direction) not in ("+", "-") or d.rate_hz is None:
+        """Remember when a fan seen slowing down steadily would reach zero. A turning
+        answer well above that ramp's line (the fan held or regained its speed) forgets
+        it; one on the line keeps it (near the floor the rate often reads 'settled')."""
+        if _kind(d.direction) not in ("+", "-") or d.rate_hz is None or \
+                not math.isfinite(d.rate_hz):
             return
         change = d.rate_change_hz_s
-        if d.rate_state == "changing" and change is not None and change < 0 and \
-                math.isfinite(d.rate_hz):
+        if d.rate_state == "changing" and change is not None and change < 0:
             self._zero_by = float(t_s) + float(d.rate_hz) / -float(change)
             self._slowing_hz_s = -float(change)
-        else:
-            self._zero_by = None
+        elif self._zero_by is not None:
+            on_line = self._slowing_hz_s * max(self._zero_by - float(t_s), 0.0)
+            if d.rate_hz > on_line + 0.05 + 0.2 * on_line:
+                self._zero_by = None
 
     def _reversal_guard(self, t_s: float) -> float | None:
         """Until when a stop must wait for a slowing fan to show a reversal (None: no
@@ -180,4 +186,7 @@ class Transitions:
         wait = min(visible / max(self._slowing_hz_s, 1e-9) + st.meter_lag_s,
                    st.reversal_guard_s)
         until = self._zero_by + wait
+        # the rate of change is a noisy estimate and the zero time an extrapolation: the
+        # wait never runs beyond reversal_guard_s after the meter fell quiet
+        until = min(until, self._quiet_since + st.reversal_guard_s)
         return until if t_s < until else None
