@@ -397,3 +397,25 @@ def test_a_window_shorter_than_a_blade_period_of_lags_never_says_stopped(repo_ro
                            rr.sweep_config(config.Config(), job.blades, 1.0), ref)
             answers.append(s["direction"])
     assert "stopped" not in answers, answers
+
+
+def test_a_recording_given_in_blocks_gives_the_same_answer(scene, reference):
+    """analyze on an iterable of blocks (a WAV read block by block, memory independent of
+    its length) answers exactly as on the whole array, and a stream's bad input gets the
+    same one-line errors."""
+    x, _ = _sim(scene, 8.0, "cw:0.4:8", seed=5)
+    whole, rows_w = analyze(x, _cfg(), reference(4), track=True)
+    odd = 4999                                         # blocks that cut pulses anywhere
+    parts, rows_p = analyze((x[i:i + odd] for i in range(0, len(x), odd)), _cfg(),
+                            reference(4), track=True)
+    assert parts == whole
+    assert rows_p == rows_w
+    from bladesonar.errors import InputError
+    with pytest.raises(InputError, match="silent"):
+        analyze(iter([np.zeros(44100)] * 8), _cfg(), reference(4))
+    y = x.copy()
+    y[100_000] = np.nan
+    with pytest.raises(InputError, match="NaN/inf samples .first at sample 100000"):
+        analyze((y[i:i + odd] for i in range(0, len(y), odd)), _cfg(), reference(4))
+    with pytest.raises(InputError, match="pulses"):
+        analyze(iter([x[:20000]]), _cfg(), reference(4))

@@ -15,7 +15,9 @@ daemon runs the same stages pulse by pulse through :class:`PulseAnalyzer`.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,8 +29,8 @@ from .dsp import fingerprint as fp
 from .dsp.decide import DecideSettings, Decision, MotionMeter, decide
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
 from .dsp.period import estimate_period
-from .dsp.pulses import OK, STATUS_NAMES, WARMUP, AlignedPulses, PulseAligner, align, \
-    check_recording, count_dropped, too_few_pulses
+from .dsp.pulses import OK, STATUS_NAMES, WARMUP, AlignedPulses, PulseAligner, \
+    RecordingCheck, align, check_recording, count_dropped, too_few_pulses
 from .dsp.rangedoppler import range_doppler
 from .dsp.tracking import Tracker, TrackerSettings
 from .errors import EstimationError, InputError, ReferenceFileError
@@ -599,14 +601,20 @@ def _start(cfg: Config, ref: Reference, held: list[AlignedPulses], w: int, rows:
     return an
 
 
-def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
-            ) -> tuple[dict[str, Any], list[dict]]:
+def _blocks(x: np.ndarray, size: int) -> Iterator[np.ndarray]:
+    for i in range(0, len(x), size):
+        yield x[i:i + size]
+
+
+def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
+            track: bool = False) -> tuple[dict[str, Any], list[dict]]:
     """Direction and rate of a recording against a reference.
 
     Parameters
     ----------
-    x : ndarray, shape (n_samples,)
-        Mono recording, float64.
+    x : ndarray, shape (n_samples,), or an iterable of such blocks
+        Mono recording, float64; given as blocks (a WAV read in blocks) the memory used is
+        independent of the recording's length (``track`` rows aside).
     cfg : Config
     ref : Reference
     track : bool
@@ -622,22 +630,42 @@ def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
     check_compatible(ref, cfg)
     a = cfg.analysis
     pri = cfg.waveform.pri_samples
-    warnings = check_recording(x, pri=pri, min_pulses=a.min_pulses,
-                               max_clip_fraction=a.max_clip_fraction,
-                               sample_rate=cfg.audio.sample_rate)
+    block = 256 * pri
+    chk = RecordingCheck(pri=pri, min_pulses=a.min_pulses,
+                         max_clip_fraction=a.max_clip_fraction,
+                         sample_rate=cfg.audio.sample_rate)
+    streamed = not isinstance(x, np.ndarray)
+    warnings: list[str] = []
+    if not streamed:
+        # a whole recording is judged before any work (block by block: no full-length
+        # temporaries); a stream as it goes
+        for b in _blocks(x, block):
+            chk.update(b)
+        warnings = chk.finish()
     # stream the recording through the same stages the daemon runs, in blocks of pulses
     # (bounded memory); the static estimate is primed from the first window of pulses
     w = int(max(round(a.static_window_s * cfg.prf_hz), 1))
     aligner = PulseAligner(pri, ref.gate)
-    block = 256 * pri
     an: PulseAnalyzer | None = None
     held: list[AlignedPulses] = []
     rows: list[dict] = []
     n_pulses = n_valid = 0
     edges: list[np.ndarray] = []
     status: list[np.ndarray] = []
-    for i in range(0, len(x) + block, block):
-        got = aligner.push(x[i:i + block]) if i < len(x) else aligner.flush()
+    source = _blocks(x, block) if not streamed else iter(x)
+    for xb in itertools.chain(source, [None]):
+        try:
+            if xb is None:
+                got = aligner.flush()
+            else:
+                xb = np.asarray(xb, dtype=np.float64)
+                if streamed:
+                    chk.update(xb)
+                got = aligner.push(xb)
+        except InputError:
+            if streamed and chk.silent:
+                chk.finish()               # the silent recording's own message
+            raise
         if not len(got):
             continue
         n_pulses += len(got)
@@ -652,13 +680,15 @@ def analyze(x: np.ndarray, cfg: Config, ref: Reference, track: bool = False
             held = []
         else:
             rows.extend(an.process(got, rows=track))
+    if streamed:
+        warnings = chk.finish()
     # a recording shorter than the static window: prime from all it holds
     if an is None and n_valid >= a.min_pulses:
         an = _start(cfg, ref, held, w, rows, track)
     # the end of the pulse train is not a drop-out (the pulses there are not used either)
     dropped = count_dropped(np.concatenate(status) if status else np.zeros(0), ended=True)
     if an is None or n_valid < a.min_pulses:
-        raise too_few_pulses(n_valid, n_pulses, len(x), pri=pri,
+        raise too_few_pulses(n_valid, n_pulses, chk.n, pri=pri,
                              sample_rate=cfg.audio.sample_rate, min_pulses=a.min_pulses,
                              dropped=dropped)
     # the last decision made (as the daemon's last estimate: at most decide_every - 1

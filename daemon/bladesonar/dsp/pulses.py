@@ -495,6 +495,72 @@ def too_few_pulses(usable: int, total: int, n_samples: int, *, pri: int, sample_
                       f"{min_pulses} are needed: {fix}")
 
 
+class RecordingCheck:
+    """:func:`check_recording` over a recording read in blocks (memory independent of its
+    length): feed each block to :meth:`update` (NaN/inf raise at once, with the sample
+    number), then :meth:`finish` gives the verdict on the whole."""
+
+    def __init__(self, *, pri: int, min_pulses: int, clip_level: float = 32767.0 / 32768.0,
+                 max_clip_fraction: float = 0.01, sample_rate: float | None = None) -> None:
+        self.pri, self.min_pulses = int(pri), int(min_pulses)
+        self.clip_level, self.max_clip_fraction = float(clip_level), float(max_clip_fraction)
+        self.sample_rate = sample_rate
+        self.n = 0
+        self.peak = 0.0
+        self.clipped = 0
+        self.bad = 0
+        self.first_bad: int | None = None
+
+    def update(self, x: np.ndarray) -> None:
+        """One block; raises on NaN/inf samples."""
+        x = np.asarray(x)
+        finite = np.isfinite(x)
+        if not finite.all():
+            bad = ~finite
+            self.bad += int(bad.sum())
+            i = self.n + int(np.argmax(bad))
+            raise InputError(f"the recording holds NaN/inf samples (first at sample {i}); the "
+                             "file is corrupt: record it again or cut that part")
+        if len(x):
+            ax = np.abs(x)
+            self.peak = max(self.peak, float(ax.max()))
+            self.clipped += int(np.count_nonzero(ax >= self.clip_level))
+        self.n += len(x)
+
+    @property
+    def silent(self) -> bool:
+        return self.peak < 1e-6
+
+    def finish(self) -> list[str]:
+        """The verdict on everything fed: raises for a silent, too short or overloaded
+        recording; warnings for a doubtful one."""
+        warnings: list[str] = []
+        if self.silent:
+            raise InputError("the recording is silent (peak level below -120 dBFS): check "
+                             "that the microphone is not muted and the right capture device "
+                             "is used")
+        n_pulses = self.n // self.pri
+        if n_pulses < self.min_pulses:
+            sr = self.sample_rate
+            if sr is not None and sr > 0:
+                secs = min_recording_s(self.pri, sr, self.min_pulses)
+                raise InputError(f"the recording holds {n_pulses} pulses "
+                                 f"({self.n / sr:.2f} s at {self.pri} samples per pulse) but "
+                                 f"at least {self.min_pulses} usable pulses are needed: "
+                                 f"record at least {secs:.1f} s")
+            raise InputError(f"the recording holds {n_pulses} pulses ({self.n} samples at "
+                             f"{self.pri} samples per pulse) but at least {self.min_pulses} "
+                             "are needed; record longer")
+        if self.clipped:
+            frac = self.clipped / self.n
+            msg = (f"{self.clipped} samples ({100 * frac:.2f}%) are clipped at full scale; "
+                   "lower the playback volume or the capture gain")
+            if frac > self.max_clip_fraction:
+                raise InputError("the recording is overloaded: " + msg)
+            warnings.append(msg)
+        return warnings
+
+
 def check_recording(x: np.ndarray, *, pri: int, min_pulses: int, clip_level: float =
                     32767.0 / 32768.0, max_clip_fraction: float = 0.01,
                     sample_rate: float | None = None) -> list[str]:
@@ -520,33 +586,7 @@ def check_recording(x: np.ndarray, *, pri: int, min_pulses: int, clip_level: flo
         NaN/inf samples, silence, heavy clipping, or fewer pulses than needed; the message
         names the problem and the fix.
     """
-    warnings: list[str] = []
-    bad = ~np.isfinite(x)
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise InputError(f"the recording holds {int(bad.sum())} NaN/inf samples (first at "
-                         f"sample {i}); the file is corrupt: record it again or cut that part")
-    peak = float(np.max(np.abs(x))) if len(x) else 0.0
-    if peak < 1e-6:
-        raise InputError("the recording is silent (peak level below -120 dBFS): check that "
-                         "the microphone is not muted and the right capture device is used")
-    n_pulses = len(x) // pri
-    if n_pulses < min_pulses:
-        if sample_rate is not None and sample_rate > 0:
-            secs = min_recording_s(pri, sample_rate, min_pulses)
-            raise InputError(f"the recording holds {n_pulses} pulses "
-                             f"({len(x) / sample_rate:.2f} s at {pri} samples per pulse) but "
-                             f"at least {min_pulses} usable pulses are needed: record at "
-                             f"least {secs:.1f} s")
-        raise InputError(f"the recording holds {n_pulses} pulses ({len(x)} samples at "
-                         f"{pri} samples per pulse) but at least {min_pulses} are needed; "
-                         "record longer")
-    clipped = int(np.count_nonzero(np.abs(x) >= clip_level))
-    if clipped:
-        frac = clipped / len(x)
-        msg = (f"{clipped} samples ({100 * frac:.2f}%) are clipped at full scale; lower the "
-               "playback volume or the capture gain")
-        if frac > max_clip_fraction:
-            raise InputError("the recording is overloaded: " + msg)
-        warnings.append(msg)
-    return warnings
+    chk = RecordingCheck(pri=pri, min_pulses=min_pulses, clip_level=clip_level,
+                         max_clip_fraction=max_clip_fraction, sample_rate=sample_rate)
+    chk.update(x)
+    return chk.finish()
