@@ -160,7 +160,7 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     InputError, EstimationError
     """
     if direction not in ("cw", "ccw", "unknown"):
-        raise ValueError("direction must be cw, ccw or unknown")
+        raise ValueError(f"direction must be cw, ccw or unknown, got {direction!r}")
     a = cfg.analysis
     fs, pri = cfg.audio.sample_rate, cfg.waveform.pri_samples
     prf = cfg.prf_hz

@@ -214,7 +214,8 @@ def backproject(pulses: np.ndarray, times_s: np.ndarray, *, delay0: float, fs: f
     x = np.asarray(pulses, dtype=np.float64)
     t = np.asarray(times_s, dtype=np.float64)
     if x.ndim != 2 or len(x) != len(t) or len(x) < 1:
-        raise ValueError("pulses (n, L) and times_s (n,) must agree, n >= 1")
+        raise ValueError(f"pulses (n, L) and times_s (n,) must agree, n >= 1, got shapes "
+                         f"{x.shape} and {t.shape}")
     if mode not in ("envelope", "coherent"):
         raise ValueError(f"mode must be 'envelope' or 'coherent', not {mode!r}")
     n, L = x.shape
@@ -376,7 +377,7 @@ def stripe_slope(d: np.ndarray, *, pad: int = 4) -> Stripes:
     z = np.asarray(d, dtype=np.float64)
     nA, nB = z.shape
     if nA < 8 or nB < 8:
-        raise ValueError("the matrix needs at least 8 rows and columns")
+        raise ValueError(f"the matrix needs at least 8 rows and columns, got {z.shape}")
     z = z - z.mean(axis=1, keepdims=True) - z.mean(axis=0, keepdims=True) + z.mean()
     z = z * np.hanning(nA)[:, None] * np.hanning(nB)[None, :]
     FA, FB = pad * nA, pad * nB

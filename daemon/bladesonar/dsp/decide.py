@@ -47,7 +47,8 @@ class MotionMeter:
 
     def __init__(self, length: int, window: int, max_lag: int = 16) -> None:
         if window < max_lag + 2:
-            raise ValueError("window must exceed max_lag + 1 pulses")
+            raise ValueError(f"window must exceed max_lag + 1 pulses, got window={window!r}, "
+                             f"max_lag={max_lag!r}")
         self.window, self.max_lag = int(window), int(max_lag)
         self._x = np.zeros((self.max_lag + 1, length))    # last pulses, ring
         self._d = np.zeros((self.window, self.max_lag))   # lag energies per pulse, ring

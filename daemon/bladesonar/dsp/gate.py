@@ -91,7 +91,8 @@ def make_gate(start_m: float, stop_m: float | None, *, c: float, fs: float, pri:
         If the window is empty or lies beyond the unambiguous range.
     """
     if not (c > 0 and fs > 0 and pri > END_GUARD_SAMPLES):
-        raise ValueError("c, fs must be positive and pri larger than the guard")
+        raise ValueError(f"c, fs must be positive and pri larger than the guard "
+                         f"({END_GUARD_SAMPLES}), got c={c!r}, fs={fs!r}, pri={pri!r}")
     start = max(0, int(math.floor(range_to_delay(max(start_m, 0.0), c, fs) + 1e-9)))
     hi = max_gate_stop(pri)
     stop = hi if stop_m is None else min(hi, int(math.ceil(range_to_delay(stop_m, c, fs)
@@ -138,7 +139,7 @@ def find_target_range(rd_power: np.ndarray, fs: float, c: float, *, dc_bins: int
     moving = np.convolve(moving, np.ones(k) / k, mode="same")
     first = int(math.ceil(range_to_delay(skip_m, c, fs)))
     if first >= n_del:
-        raise ValueError("skip_m is beyond the delays given")
+        raise ValueError(f"skip_m={skip_m!r} is beyond the delays given ({n_del} delays)")
     seg = moving[first:]
     floor = float(np.median(seg))
     peak = float(seg.max())

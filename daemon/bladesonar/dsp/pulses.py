@@ -211,9 +211,10 @@ class PulseAligner:
 
     def __post_init__(self) -> None:
         if self.pri < 64:
-            raise ValueError("pri must be at least 64 samples")
+            raise ValueError(f"pri must be at least 64 samples, got {self.pri!r}")
         if self.gate.stop > self.pri or self.gate.start < 0:
-            raise ValueError("gate must lie within one PRI")
+            raise ValueError(f"gate must lie within one PRI (0..{self.pri}), got "
+                             f"{self.gate.start}..{self.gate.stop}")
         self._period = float(self.pri)
 
     # -- public -----------------------------------------------------------------------

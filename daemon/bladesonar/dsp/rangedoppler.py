@@ -36,7 +36,8 @@ def range_doppler(pulses: np.ndarray, prf: float, *, window: str | None = "hann"
     """
     x = np.asarray(pulses, dtype=np.float64)
     if x.ndim != 2 or x.shape[0] < 2:
-        raise ValueError("pulses must be a 2-D array with at least 2 rows")
+        raise ValueError(f"pulses must be a 2-D array with at least 2 rows, got shape "
+                         f"{x.shape}")
     if remove_mean:
         x = x - x.mean(axis=0, keepdims=True)
     if window == "hann":
