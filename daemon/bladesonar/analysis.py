@@ -317,9 +317,9 @@ class PulseAnalyzer:
     seen: int = 0
     # alias check (dsp/aliasing.py): the window's distances to the fine table and pulse
     # numbers (rings), the last verdict, and when / at which tracked rate it was made
-    _ring_d: np.ndarray = field(init=False, repr=False)
-    _ring_k: np.ndarray = field(init=False, repr=False)
-    _ring_n: int = 0
+    _alias_dist: np.ndarray = field(init=False, repr=False)
+    _alias_pulse: np.ndarray = field(init=False, repr=False)
+    _alias_n: int = 0
     alias: aliasing.AliasVerdict | None = None
     alias_note: str = ""
     _alias_at: int = -(10 ** 9)
@@ -359,10 +359,10 @@ class PulseAnalyzer:
         self.still = MotionMeter(self.ref.mean_pulse.shape[0], short,
                                  max_lag=max(3, min(lags, short // 2)))
         self.slow = StaticRemover(self.static.alpha / SLOW_FACTOR, self.static.mean)
-        self._tsq = (self.ref.table ** 2).sum(axis=1)
-        self._fine = aliasing.fine_table(self.ref.table)
-        self._ring_d = np.zeros((self.window, len(self._fine[0])))
-        self._ring_k = np.zeros(self.window, dtype=np.int64)
+        self._table_norms = (self.ref.table ** 2).sum(axis=1)
+        self._fine_table = aliasing.fine_table(self.ref.table)
+        self._alias_dist = np.zeros((self.window, len(self._fine_table[0])))
+        self._alias_pulse = np.zeros(self.window, dtype=np.int64)
         self._alias_every = max(self.window // 4, 8)
 
     def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict]:
@@ -379,8 +379,8 @@ class PulseAnalyzer:
         res = self.static(xv)
         feats = fp.envelope_features(res, np.zeros(res.shape[1]), kind=a.features,
                                      smooth=a.envelope_smooth)
-        m = fp.match(feats, self.ref.table, self._tsq)
-        dist = aliasing.distances(feats, self._fine)
+        m = fp.match(feats, self.ref.table, self._table_norms)
+        dist = aliasing.distances(feats, self._fine_table)
         still_feats = fp.envelope_features(self.slow(xv), np.zeros(res.shape[1]),
                                            kind="envelope", smooth=a.envelope_smooth,
                                            band=STILL_BAND)
@@ -390,12 +390,12 @@ class PulseAnalyzer:
         for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v])):
             st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
             self._pending.append((feats[i], still_feats[i]))
-            j = self._ring_n % self.window
-            self._ring_d[j] = dist[i]
-            self._ring_k[j] = int(k)
-            self._ring_n += 1
+            j = self._alias_n % self.window
+            self._alias_dist[j] = dist[i]
+            self._alias_pulse[j] = int(k)
+            self._alias_n += 1
             self._check_aliases()
-            if self._ring_n % RECHECK_EVERY == 0:
+            if self._alias_n % RECHECK_EVERY == 0:
                 self._recheck_track()
             if self._prev is not None:
                 dd = xv[i] - self._prev
@@ -451,14 +451,14 @@ class PulseAnalyzer:
         young = tr.last_k is not None and tr.start_k is not None and \
             tr.last_k - tr.start_k < self.window // 2
         every = 8 if young else self._alias_every
-        if not jumped and self._ring_n - self._alias_at < every:
+        if not jumped and self._alias_n - self._alias_at < every:
             return
-        self._alias_at = self._ring_n
+        self._alias_at = self._alias_n
         self._alias_rate = rate
         self.alias, self.alias_note = None, ""
-        n = min(self._ring_n, self.window)
-        idx = (self._ring_n - n + np.arange(n)) % self.window
-        k = self._ring_k[idx]
+        n = min(self._alias_n, self.window)
+        idx = (self._alias_n - n + np.arange(n)) % self.window
+        k = self._alias_pulse[idx]
         keep = k >= (tr.start_k if tr.start_k is not None else k[0])
         idx, k = idx[keep], k[keep]
         if len(k) < 2:
@@ -475,9 +475,9 @@ class PulseAnalyzer:
             if motion < self.cfg.tracking.motion_threshold:
                 return
         v = aliasing.check_aliases(
-            None, k, self._fine, rate, sd, max_rate=tr.settings.max_rate,
+            None, k, self._fine_table, rate, sd, max_rate=tr.settings.max_rate,
             min_rate=self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit, fracs=fracs,
-            dist=self._ring_d[idx])
+            dist=self._alias_dist[idx])
         self.alias = v
         if v is None:
             return
@@ -495,7 +495,7 @@ class PulseAnalyzer:
             # a weakly asymmetric room): until the next check agrees, the answer is unknown
             self._move_to = v.best_rate
             self.alias = dataclasses.replace(v, status="ambiguous", gap=0.0)
-            self._alias_at = self._ring_n - self._alias_every + 8   # look again soon
+            self._alias_at = self._alias_n - self._alias_every + 8   # look again soon
             self.alias_note = (f"rate ambiguous: {seen}; relative rate {v.best_rate / r0:+.3f} "
                                f"fits the reference table better than the track's "
                                f"{v.rate / r0:+.3f} (cost gap {v.gap:.2f}), to be confirmed")

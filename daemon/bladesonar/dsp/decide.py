@@ -171,7 +171,7 @@ class Decision:
                     confidence=r(self.confidence, 4), reason=self.reason)
 
 
-def _phi(x: float) -> float:
+def _normal_cdf(x: float) -> float:
     return 0.5 * (1.0 + math.erf(x / math.sqrt(2.0)))
 
 
@@ -237,7 +237,7 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     if turning:
         rel = rate / ref_cycles_per_pulse
         rel_std = rate_std / ref_cycles_per_pulse
-        p_sign = _phi(abs(rate) / rate_std) if rate_std > 0 else 1.0
+        p_sign = _normal_cdf(abs(rate) / rate_std) if rate_std > 0 else 1.0
         conf = (2.0 * p_sign - 1.0) * min(max(accepted, 0.0), 1.0)
         if quality < s.good_quality:
             # matches barely better than chance on average: the scene is hardly visible

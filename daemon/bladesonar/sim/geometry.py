@@ -107,7 +107,7 @@ def _blocked(p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2: np.ndarray,
              exclude: np.ndarray) -> np.ndarray:
     """Whether the open segment p1->p2 crosses any obstacle segment q1->q2.
 
-    p1, p2: (..., 2); q1, q2: (..., O, 2) broadcastable; exclude: (..., O) bool.
+    p1, p2: (..., 2); q1, q2: (..., n_obst, 2) broadcastable; exclude: (..., n_obst) bool.
     Touching at the path's own end points does not count; grazing an obstacle's end does.
     """
     d = (p2 - p1)[..., None, :]
@@ -143,13 +143,13 @@ def path_table(scene: Scene, angles: np.ndarray, *, wall_bounces: bool = True) -
     nu = np.stack([-u[..., 1], u[..., 0]], axis=-1)
     e0, e1 = C + r0 * u, C + r1 * u
 
-    # obstacles per angle: walls then blades; (P, O, 2)
-    O = W + K
+    # obstacles per angle: walls then blades; (P, n_obst, 2)
+    n_obst = W + K
     q1 = np.concatenate([np.broadcast_to(A, (P, W, 2)), e0], axis=1)
     q2 = np.concatenate([np.broadcast_to(B, (P, W, 2)), e1], axis=1)
-    eyeW = np.zeros((W, O), bool)
+    eyeW = np.zeros((W, n_obst), bool)
     eyeW[np.arange(W), np.arange(W)] = True
-    eyeK = np.zeros((K, O), bool)
+    eyeK = np.zeros((K, n_obst), bool)
     eyeK[np.arange(K), W + np.arange(K)] = True
 
     # --- static wall echoes (W,)
@@ -202,8 +202,8 @@ def path_table(scene: Scene, angles: np.ndarray, *, wall_bounces: bool = True) -
         s_w = _dot(wp - A, wl) / wl2
         ok &= (s_w >= 0) & (s_w <= 1)
         # shadowing on the three real legs
-        exW = np.broadcast_to(eyeW[None, :, :], (K, W, O))
-        exK = np.broadcast_to(eyeK[:, None, :], (K, W, O))
+        exW = np.broadcast_to(eyeW[None, :, :], (K, W, n_obst))
+        exK = np.broadcast_to(eyeK[:, None, :], (K, W, n_obst))
         Sb = np.broadcast_to(S, wp.shape)
         Q1, Q2 = q1[:, None, None], q2[:, None, None]
         ok &= ~_blocked(Sb, wp, Q1, Q2, exW[None])
