@@ -14,7 +14,6 @@ daemon runs the same stages pulse by pulse through :class:`PulseAnalyzer`.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
 from collections.abc import Iterable, Iterator
@@ -315,18 +314,7 @@ class PulseAnalyzer:
     _noise: float = float("nan")                  # running raw half lag-1 difference energy
     dropped: int = 0
     seen: int = 0
-    # alias check (dsp/aliasing.py): the window's distances to the fine table and pulse
-    # numbers (rings), the last verdict, and when / at which tracked rate it was made
-    _alias_dist: np.ndarray = field(init=False, repr=False)
-    _alias_pulse: np.ndarray = field(init=False, repr=False)
-    _alias_n: int = 0
-    alias: aliasing.AliasVerdict | None = None
-    alias_note: str = ""
-    _alias_at: int = -(10 ** 9)
-    alias_moves: int = 0                          # times the track was moved off an alias
-    _move_to: float = float("nan")                # a move seen once, awaiting confirmation
-    last_move: tuple[float, float, int] | None = None   # (from, to relative rate, pulse)
-    _alias_rate: float = float("nan")
+    aliases: aliasing.AliasWatch = field(init=False)   # the alias check (dsp/aliasing.py)
     #: the state machine (transitions.py), its last output and events not yet taken
     transitions: Transitions = field(init=False)
     state: Decision | None = None
@@ -360,10 +348,9 @@ class PulseAnalyzer:
                                  max_lag=max(3, min(lags, short // 2)))
         self.slow = StaticRemover(self.static.alpha / SLOW_FACTOR, self.static.mean)
         self._table_norms = (self.ref.table ** 2).sum(axis=1)
-        self._fine_table = aliasing.fine_table(self.ref.table)
-        self._alias_dist = np.zeros((self.window, len(self._fine_table[0])))
-        self._alias_pulse = np.zeros(self.window, dtype=np.int64)
-        self._alias_every = max(self.window // 4, 8)
+        self.aliases = aliasing.AliasWatch(
+            aliasing.fine_table(self.ref.table), self.window, self.ref.cycles_per_pulse,
+            min_rate=self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit)
 
     def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict]:
         """Match, track, measure motion and decide for a block of pulses, pulse by pulse
@@ -380,7 +367,7 @@ class PulseAnalyzer:
         feats = fp.envelope_features(res, np.zeros(res.shape[1]), kind=a.features,
                                      smooth=a.envelope_smooth)
         m = fp.match(feats, self.ref.table, self._table_norms)
-        dist = aliasing.distances(feats, self._fine_table)
+        dist = aliasing.distances(feats, self.aliases.fine)
         still_feats = fp.envelope_features(self.slow(xv), np.zeros(res.shape[1]),
                                            kind="envelope", smooth=a.envelope_smooth,
                                            band=STILL_BAND)
@@ -390,12 +377,9 @@ class PulseAnalyzer:
         for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v])):
             st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
             self._pending.append((feats[i], still_feats[i]))
-            j = self._alias_n % self.window
-            self._alias_dist[j] = dist[i]
-            self._alias_pulse[j] = int(k)
-            self._alias_n += 1
+            self.aliases.push(int(k), dist[i])
             self._check_aliases()
-            if self._alias_n % RECHECK_EVERY == 0:
+            if self.aliases.count % RECHECK_EVERY == 0:
                 self._recheck_track()
             if self._prev is not None:
                 dd = xv[i] - self._prev
@@ -435,87 +419,12 @@ class PulseAnalyzer:
         return got
 
     def _check_aliases(self) -> None:
-        """Every quarter window (every 8 pulses soon after a lock), or when the track
-        jumps to another rate: is the tracked rate near p/q cycles per pulse, and if so,
-        which of its aliases fits the reference table best? A clear winner other than the
-        track moves the track; no clear winner makes the decision unknown."""
-        tr = self.tracker
-        if not tr.locked:
-            self.alias, self.alias_note = None, ""
-            self._alias_rate = float("nan")
-            return
-        rate = float(tr.x[1])
-        jumped = not abs(rate - self._alias_rate) <= 0.25 / aliasing.MAX_Q
-        # soon after a lock the window since it is short and its verdict young: look again
-        # every 8 pulses until it spans half the window
-        young = tr.last_k is not None and tr.start_k is not None and \
-            tr.last_k - tr.start_k < self.window // 2
-        every = 8 if young else self._alias_every
-        if not jumped and self._alias_n - self._alias_at < every:
-            return
-        self._alias_at = self._alias_n
-        self._alias_rate = rate
-        self.alias, self.alias_note = None, ""
-        n = min(self._alias_n, self.window)
-        idx = (self._alias_n - n + np.arange(n)) % self.window
-        k = self._alias_pulse[idx]
-        keep = k >= (tr.start_k if tr.start_k is not None else k[0])
-        idx, k = idx[keep], k[keep]
-        if len(k) < 2:
-            return
-        sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
-        fracs = aliasing.near_fractions(rate, span=int(k[-1] - k[0]) + 1, rate_std=sd,
-                                        accel=self._clear_accel())
-        if not fracs:
-            return
-        if fracs[0] == 0:
-            # a track standing still: check it against every p/q only while the fan
-            # moves (the check then has the most candidates)
+        """The alias watch (:class:`aliasing.AliasWatch`) on the current track; it needs
+        the long meter only for a track standing still (checked while the fan moves)."""
+        def moving() -> bool:
             motion, _ = self.motion.statistic()
-            if motion < self.cfg.tracking.motion_threshold:
-                return
-        v = aliasing.check_aliases(
-            None, k, self._fine_table, rate, sd, max_rate=tr.settings.max_rate,
-            min_rate=self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit, fracs=fracs,
-            dist=self._alias_dist[idx])
-        self.alias = v
-        if v is None:
-            return
-        r0 = self.ref.cycles_per_pulse
-        if v.frac == 0:
-            seen = ("the track stands still while the fan moves: it may be the alias of a "
-                    "rate near p/q blade period per pulse, where the pulses see only q "
-                    "blade angles")
-        else:
-            seen = (f"rate near {v.frac.numerator}/{v.frac.denominator} blade period per "
-                    f"pulse: the pulses see only {v.frac.denominator} blade angles")
-        if v.status == "resolved" and not abs(v.best_rate - self._move_to) <= \
-                0.25 / aliasing.MAX_Q:
-            # one check alone never moves the track (a mirror line can win one window of
-            # a weakly asymmetric room): until the next check agrees, the answer is unknown
-            self._move_to = v.best_rate
-            self.alias = dataclasses.replace(v, status="ambiguous", gap=0.0)
-            self._alias_at = self._alias_n - self._alias_every + 8   # look again soon
-            self.alias_note = (f"rate ambiguous: {seen}; relative rate {v.best_rate / r0:+.3f} "
-                               f"fits the reference table better than the track's "
-                               f"{v.rate / r0:+.3f} (cost gap {v.gap:.2f}), to be confirmed")
-            return
-        self._move_to = float("nan")
-        if v.status == "resolved":
-            tr.relock(v.best_rate, v.best_phase, int(k[-1]))
-            self._alias_rate = v.best_rate
-            self.alias_moves += 1
-            self.last_move = (v.rate / r0, v.best_rate / r0, int(k[-1]))
-            self.alias_note = (f"{seen}; the track was on the alias {v.rate / r0:+.3f} "
-                               f"(relative rate) and was moved to {v.best_rate / r0:+.3f}, "
-                               f"which fits the reference table better (cost gap "
-                               f"{v.gap:.2f})")
-        elif v.status == "ambiguous":
-            self.alias_note = (f"rate ambiguous: {seen}, and relative rates "
-                               f"{v.best_rate / r0:+.3f} and {v.runner_rate / r0:+.3f} fit "
-                               f"the reference table about equally (cost gap {v.gap:.2f} < "
-                               f"{aliasing.MARGIN:g}); another fan speed, or another "
-                               "waveform.pri_samples with a new reference, avoids it")
+            return motion >= self.cfg.tracking.motion_threshold
+        self.aliases.check(self.tracker, accel=self._clear_accel(), moving=moving)
 
     def _recheck_track(self) -> None:
         """A track the good matches mostly reject is given up for a line that fits them
@@ -578,8 +487,9 @@ class PulseAnalyzer:
                       ref_cycles_per_pulse=self.ref.cycles_per_pulse,
                       ref_rate_hz=float(self.ref.meta["rate_hz"]),
                       ref_direction=self.ref.meta.get("direction", "unknown"),
-                      alias_gap=self.alias.gap if locked and self.alias else math.inf,
-                      alias_note=self.alias_note if locked else "",
+                      alias_gap=self.aliases.verdict.gap if locked and self.aliases.verdict
+                      else math.inf,
+                      alias_note=self.aliases.note if locked else "",
                       settings=decide_settings(self.cfg))
 
 
@@ -696,11 +606,11 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
     d = an.decided if an.decided is not None else an.decision()
     if dropped:
         warnings.append(f"{dropped} pulses dropped or corrupt (skipped)")
-    if an.last_move is not None and not any("alias" in w for w in d.warnings):
-        a_, b_, k_ = an.last_move
+    if an.aliases.last_move is not None and not any("alias" in w for w in d.warnings):
+        a_, b_, k_ = an.aliases.last_move
         warnings.append(f"at pulse {k_} the track was on the alias {a_:+.3f} (relative rate) "
                         f"and was moved to {b_:+.3f}, which fits the reference table better "
-                        f"({an.alias_moves} move(s) in all; a rate near p/q blade period per "
+                        f"({an.aliases.moves} move(s) in all; a rate near p/q blade period per "
                         "pulse shows few blade angles)")
     warnings.extend(d.warnings)
     e = np.concatenate(edges)

@@ -23,7 +23,9 @@ finds the fraction, for a warning.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from fractions import Fraction
 from functools import lru_cache
 
@@ -31,6 +33,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from .fingerprint import table_lookup
+from .tracking import Tracker
 
 #: Largest denominator q checked (simulated paper-room probes locked on aliases up to
 #: q = 24, the largest tried; 17 angles, 0.5 Hz, were mostly fine without the check).
@@ -238,3 +241,120 @@ def check_aliases(features: np.ndarray | None, k: np.ndarray,
         status = "clear" if b == 0 else "resolved"
     return AliasVerdict(status, frac, float(rate), float(rates[b]), float(phase[b]),
                         float(rates[r]), float(gap))
+
+
+@dataclass
+class AliasWatch:
+    """The alias check run on a live track, pulse by pulse (the daemon and analyze).
+
+    Keeps the last ``window`` pulses' distances to the fine table; every quarter window
+    (every 8 pulses soon after a lock), or when the track jumps to another rate, asks
+    whether the tracked rate is near p/q cycles per pulse and, if so, which of its aliases
+    fits the reference table best. A clear winner other than the track, found twice in a
+    row, moves the track; no clear winner leaves a verdict that makes the answer unknown,
+    with ``note`` as the reason.
+    """
+
+    fine: tuple[np.ndarray, np.ndarray]
+    window: int
+    ref_cycles_per_pulse: float
+    min_rate: float
+    verdict: AliasVerdict | None = None
+    note: str = ""
+    moves: int = 0                                  # times the track was moved off an alias
+    last_move: tuple[float, float, int] | None = None   # (from, to relative rate, pulse)
+    count: int = 0                                  # pulses pushed
+    _dist: np.ndarray = field(init=False, repr=False)
+    _pulse: np.ndarray = field(init=False, repr=False)
+    _at: int = -(10 ** 9)
+    _rate: float = float("nan")
+    _move_to: float = float("nan")                  # a move seen once, awaiting confirmation
+
+    def __post_init__(self) -> None:
+        self._dist = np.zeros((self.window, len(self.fine[0])))
+        self._pulse = np.zeros(self.window, dtype=np.int64)
+        self._every = max(self.window // 4, 8)
+
+    def push(self, k: int, dist: np.ndarray) -> None:
+        """Pulse ``k``'s distances to the fine table (:func:`distances`)."""
+        j = self.count % self.window
+        self._dist[j] = dist
+        self._pulse[j] = int(k)
+        self.count += 1
+
+    def check(self, tr: Tracker, *, accel: float, moving: Callable[[], bool]) -> None:
+        """Look at track ``tr`` if due (``accel``: its clear acceleration, cycles per
+        pulse^2; ``moving()``: whether the fan is seen to move, asked only for a track
+        standing still); may move the track."""
+        if not tr.locked:
+            self.verdict, self.note = None, ""
+            self._rate = float("nan")
+            return
+        rate = float(tr.x[1])
+        jumped = not abs(rate - self._rate) <= 0.25 / MAX_Q
+        # soon after a lock the window since it is short and its verdict young: look again
+        # every 8 pulses until it spans half the window
+        young = tr.last_k is not None and tr.start_k is not None and \
+            tr.last_k - tr.start_k < self.window // 2
+        every = 8 if young else self._every
+        if not jumped and self.count - self._at < every:
+            return
+        self._at = self.count
+        self._rate = rate
+        self.verdict, self.note = None, ""
+        n = min(self.count, self.window)
+        idx = (self.count - n + np.arange(n)) % self.window
+        k = self._pulse[idx]
+        keep = k >= (tr.start_k if tr.start_k is not None else k[0])
+        idx, k = idx[keep], k[keep]
+        if len(k) < 2:
+            return
+        sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
+        fracs = near_fractions(rate, span=int(k[-1] - k[0]) + 1, rate_std=sd, accel=accel)
+        if not fracs:
+            return
+        # a track standing still: check it against every p/q only while the fan moves
+        # (the check then has the most candidates)
+        if fracs[0] == 0 and not moving():
+            return
+        v = check_aliases(None, k, self.fine, rate, sd, max_rate=tr.settings.max_rate,
+                          min_rate=self.min_rate, fracs=fracs, dist=self._dist[idx])
+        self.verdict = v
+        if v is not None:
+            self._act(tr, v, int(k[-1]))
+
+    def _act(self, tr: Tracker, v: AliasVerdict, k_last: int) -> None:
+        """Move the track on a confirmed clear winner; say why the answer is unknown."""
+        r0 = self.ref_cycles_per_pulse
+        if v.frac == 0:
+            seen = ("the track stands still while the fan moves: it may be the alias of a "
+                    "rate near p/q blade period per pulse, where the pulses see only q "
+                    "blade angles")
+        else:
+            seen = (f"rate near {v.frac.numerator}/{v.frac.denominator} blade period per "
+                    f"pulse: the pulses see only {v.frac.denominator} blade angles")
+        if v.status == "resolved" and not abs(v.best_rate - self._move_to) <= 0.25 / MAX_Q:
+            # one check alone never moves the track (a mirror line can win one window of
+            # a weakly asymmetric room): until the next check agrees, the answer is unknown
+            self._move_to = v.best_rate
+            self.verdict = dataclasses.replace(v, status="ambiguous", gap=0.0)
+            self._at = self.count - self._every + 8        # look again soon
+            self.note = (f"rate ambiguous: {seen}; relative rate {v.best_rate / r0:+.3f} "
+                         f"fits the reference table better than the track's "
+                         f"{v.rate / r0:+.3f} (cost gap {v.gap:.2f}), to be confirmed")
+            return
+        self._move_to = float("nan")
+        if v.status == "resolved":
+            tr.relock(v.best_rate, v.best_phase, k_last)
+            self._rate = v.best_rate
+            self.moves += 1
+            self.last_move = (v.rate / r0, v.best_rate / r0, k_last)
+            self.note = (f"{seen}; the track was on the alias {v.rate / r0:+.3f} "
+                         f"(relative rate) and was moved to {v.best_rate / r0:+.3f}, which "
+                         f"fits the reference table better (cost gap {v.gap:.2f})")
+        elif v.status == "ambiguous":
+            self.note = (f"rate ambiguous: {seen}, and relative rates "
+                         f"{v.best_rate / r0:+.3f} and {v.runner_rate / r0:+.3f} fit the "
+                         f"reference table about equally (cost gap {v.gap:.2f} < "
+                         f"{MARGIN:g}); another fan speed, or another waveform.pri_samples "
+                         "with a new reference, avoids it")
