@@ -501,14 +501,43 @@ def new_analyzer(cfg: Config, ref: Reference, first: np.ndarray | None = None) -
     return PulseAnalyzer(cfg, ref, StaticRemover(1.0 / w, mean))
 
 
-def _start(cfg: Config, ref: Reference, held: list[AlignedPulses], w: int, rows: list[dict],
-           track: bool) -> PulseAnalyzer:
-    """The analyzer, primed from the first ``w`` valid pulses held, with them processed."""
-    first = np.concatenate([h.pulses[h.valid] for h in held])[:w]
-    an = new_analyzer(cfg, ref, first)
-    for h in held:
-        rows.extend(an.process(h, rows=track))
-    return an
+class WarmStart:
+    """Aligned pulses in, per-pulse rows out: holds the pulses until the static estimate
+    can be primed from the first ``analysis.static_window_s`` of valid pulses, then runs
+    the :class:`PulseAnalyzer` on them and on all that follow. The daemon's warm-up and
+    the offline analysis of a file are this same code."""
+
+    def __init__(self, cfg: Config, ref: Reference, *, rows: bool = False) -> None:
+        self.cfg, self.ref, self.rows = cfg, ref, rows
+        self.warmup = int(max(round(cfg.analysis.static_window_s * cfg.prf_hz), 1))
+        self.analyzer: PulseAnalyzer | None = None
+        self._held: list[AlignedPulses] = []
+        self.held_valid = 0
+
+    def push(self, got: AlignedPulses) -> list[dict]:
+        """One block of aligned pulses; rows (with ``rows``) of the pulses analysed now."""
+        if self.analyzer is not None:
+            return self.analyzer.process(got, rows=self.rows) if len(got) else []
+        if len(got):
+            self._held.append(got)
+            self.held_valid += int(got.valid.sum())
+        return self._start() if self.held_valid >= self.warmup else []
+
+    def finish(self, min_pulses: int) -> list[dict]:
+        """At the end of a recording shorter than the warm-up: prime from all it holds,
+        if that is at least ``min_pulses``."""
+        if self.analyzer is None and self.held_valid >= min_pulses:
+            return self._start()
+        return []
+
+    def _start(self) -> list[dict]:
+        first = np.concatenate([h.pulses[h.valid] for h in self._held])[:self.warmup]
+        self.analyzer = new_analyzer(self.cfg, self.ref, first)
+        rows: list[dict] = []
+        for h in self._held:
+            rows.extend(self.analyzer.process(h, rows=self.rows))
+        self._held = []
+        return rows
 
 
 def _blocks(x: np.ndarray, size: int) -> Iterator[np.ndarray]:
@@ -554,10 +583,8 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
         warnings = chk.finish()
     # stream the recording through the same stages the daemon runs, in blocks of pulses
     # (bounded memory); the static estimate is primed from the first window of pulses
-    w = int(max(round(a.static_window_s * cfg.prf_hz), 1))
     aligner = PulseAligner(pri, ref.gate)
-    an: PulseAnalyzer | None = None
-    held: list[AlignedPulses] = []
+    stream = WarmStart(cfg, ref, rows=track)
     rows: list[dict] = []
     n_pulses = n_valid = 0
     edges: list[np.ndarray] = []
@@ -582,19 +609,12 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
         n_valid += int(got.valid.sum())
         edges.append(got.edges[got.valid])
         status.append(got.status)
-        if an is None:
-            held.append(got)
-            if n_valid < w:
-                continue
-            an = _start(cfg, ref, held, w, rows, track)
-            held = []
-        else:
-            rows.extend(an.process(got, rows=track))
+        rows.extend(stream.push(got))
     if streamed:
         warnings = chk.finish()
     # a recording shorter than the static window: prime from all it holds
-    if an is None and n_valid >= a.min_pulses:
-        an = _start(cfg, ref, held, w, rows, track)
+    rows.extend(stream.finish(a.min_pulses))
+    an = stream.analyzer
     # the end of the pulse train is not a drop-out (the pulses there are not used either)
     dropped = count_dropped(np.concatenate(status) if status else np.zeros(0), ended=True)
     if an is None or n_valid < a.min_pulses:

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .analysis import PulseAnalyzer, Reference, new_analyzer
+from .analysis import PulseAnalyzer, Reference, WarmStart
 from .config import Config
 from .dsp.pulses import DROPOUT, OK, AlignedPulses, PulseAligner
 from .transitions import Event
@@ -30,15 +30,17 @@ class LiveAnalyzer:
         self.reference_id = reference_id
         self.pri = cfg.waveform.pri_samples
         self.aligner = PulseAligner(self.pri, ref.gate)
-        self.warmup = int(max(round(cfg.analysis.static_window_s * cfg.prf_hz), 1))
-        self.analyzer: PulseAnalyzer | None = None
-        self._held: list[AlignedPulses] = []
-        self._held_valid = 0
+        self.stream = WarmStart(cfg, ref)
         self._next_sample: int | None = None
         self._pushed = 0                       # samples given to the aligner so far
         self._gaps: list[tuple[int, int]] = []  # (aligner stream position, pulses lost)
         self.lost_pulses = 0
         self.discontinuities = 0
+
+    @property
+    def analyzer(self) -> PulseAnalyzer | None:
+        """The per-pulse analysis, once the warm-up is done."""
+        return self.stream.analyzer
 
     @property
     def aligned(self) -> bool:
@@ -65,19 +67,7 @@ class LiveAnalyzer:
         self._pushed += len(samples)
         if len(got) and self._gaps:
             self._mend_gaps(got)
-        if self.analyzer is None:
-            if len(got):
-                self._held.append(got)
-                self._held_valid += int(got.valid.sum())
-            if self._held_valid < self.warmup:
-                return None
-            first = np.concatenate([h.pulses[h.valid] for h in self._held])[:self.warmup]
-            self.analyzer = new_analyzer(self.cfg, self.ref, first)
-            for h in self._held:
-                self.analyzer.process(h)
-            self._held = []
-        elif len(got):
-            self.analyzer.process(got)
+        self.stream.push(got)
         return self.estimate()
 
     def _mend_gaps(self, got: AlignedPulses) -> None:
