@@ -14,7 +14,7 @@ from bladesonar import config
 
 from loopback import RoomProcess, bladesonar_cmd, require_alsa, write_config
 
-pytestmark = pytest.mark.alsa
+pytestmark = [pytest.mark.alsa, pytest.mark.slow]
 
 
 @pytest.fixture(autouse=True)

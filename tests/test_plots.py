@@ -13,6 +13,8 @@ import pytest
 
 from bladesonar.cli import main
 
+pytestmark = pytest.mark.slow   # renders PNGs (matplotlib): outside the fast tier
+
 SCENE = "config/scenes/paper-room.yaml"
 
 

@@ -16,6 +16,8 @@ from bladesonar.runtime_report import (TRANSITION_TARGETS_S, TRANSITIONS_SCHEDUL
                                        transitions_schedule)
 from bladesonar.sim import load_scene
 from bladesonar.sim.render import simulate
+
+pytestmark = pytest.mark.slow   # a sweep of simulated trials: outside the fast tier
 from bladesonar.sim.schedule import parse
 from bladesonar.sim.score import truth_events
 
