@@ -18,12 +18,17 @@ class ConfigError(BladesonarError):
 
     def __init__(self, key: str, value: object, allowed: str, *, source: str | None = None,
                  line: int | None = None) -> None:
+        key = str(key) if len(str(key)) <= 80 else str(key)[:77] + "..."
         self.key, self.value, self.allowed = key, value, allowed
         self.source, self.line = source, line
         where = ""
         if source:
             where = f"{source}:{line}: " if line else f"{source}: "
-        super().__init__(f"{where}{key} = {value!r}: {allowed}")
+        from .io.files import short_repr  # reprs are bounded: a value may be huge
+
+        # a file name (--config, --scene, <yaml>) is kept whole, up to PATH_MAX
+        limit = 4096 if key.startswith(("--", "<")) else 80
+        super().__init__(f"{where}{key} = {short_repr(value, limit)}: {allowed}")
 
 
 class InputError(BladesonarError):
@@ -32,6 +37,10 @@ class InputError(BladesonarError):
 
 class ReferenceFileError(BladesonarError):
     """A reference file is missing, corrupt, or was made with other config values."""
+
+
+class ReferenceMissingError(ReferenceFileError):
+    """There is no reference file (yet): the daemon waits for one, it is not invalid."""
 
 
 class EstimationError(BladesonarError):

@@ -1,0 +1,153 @@
+"""File edges shared by the loaders and writers: bounded reads, atomic writes, stale temp
+files, and reprs short enough for a one-line error.
+
+Every loader decides its limit before it reads: a file (or /dev/zero, a FIFO) is read at
+most ``limit + 1`` bytes, so a hostile size never reaches memory.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import reprlib
+import stat
+import tempfile
+import time
+from pathlib import Path
+from typing import BinaryIO, Iterator
+
+#: Longest repr of a user value inside an error message, characters.
+MAX_REPR = 80
+
+_repr = reprlib.Repr()
+_repr.maxlevel = 2
+_repr.maxstring = MAX_REPR
+_repr.maxother = MAX_REPR
+_repr.maxlong = 40
+for _name in ("maxlist", "maxtuple", "maxdict", "maxset", "maxfrozenset", "maxdeque",
+              "maxarray"):
+    setattr(_repr, _name, 4)
+
+
+def short_repr(value: object, limit: int = MAX_REPR) -> str:
+    """repr() of a user value cut to ``limit`` characters, without ever building the full
+    repr (a nested or huge value costs no more than a short one)."""
+    try:
+        s = repr(value[:limit]) if isinstance(value, str) else _repr.repr(value)
+    except Exception:  # noqa: BLE001 - a repr that fails must not mask the real error
+        s = f"<{type(value).__name__}>"
+    s = s.replace("\n", "\\n")
+    return s if len(s) <= limit else s[:limit - 3] + "..."
+
+
+def human_bytes(n: int) -> str:
+    """1048576 -> '1 MiB' (for limits in messages)."""
+    for unit, size in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if n >= size:
+            v = n / size
+            return f"{v:.0f} {unit}" if v == int(v) else f"{v:.1f} {unit}"
+    return f"{n} bytes"
+
+
+class TooLarge(Exception):
+    """The file holds more than the caller's limit (``size`` is a lower bound if not a
+    regular file)."""
+
+    def __init__(self, size: int, limit: int) -> None:
+        super().__init__(f"larger than {human_bytes(limit)}")
+        self.size, self.limit = size, limit
+
+
+class NotAFile(Exception):
+    """The path is a directory or another kind of file a loader cannot read."""
+
+
+def read_capped(path: str | Path, limit: int) -> bytes:
+    """The bytes of ``path``, refusing before reading if its size is over ``limit``.
+
+    Regular files are checked by size first; character devices and FIFOs (/dev/stdin,
+    a shell's <(...)) are read at most ``limit + 1`` bytes, so /dev/zero is refused as
+    too large rather than filling memory. Raises OSError, TooLarge or NotAFile.
+    """
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise NotAFile("is a directory")
+        if not (stat.S_ISREG(st.st_mode) or stat.S_ISCHR(st.st_mode)
+                or stat.S_ISFIFO(st.st_mode)):
+            raise NotAFile("is not a regular file")
+        if stat.S_ISREG(st.st_mode) and st.st_size > limit:
+            raise TooLarge(st.st_size, limit)
+        chunks: list[bytes] = []
+        got = 0
+        while got <= limit:
+            b = os.read(fd, min(1 << 20, limit + 1 - got))
+            if not b:
+                break
+            chunks.append(b)
+            got += len(b)
+        if got > limit:
+            raise TooLarge(got, limit)
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
+def temp_prefix(path: Path) -> str:
+    """Prefix of the hidden temporary files an atomic write of ``path`` uses."""
+    return f".{path.name}."
+
+
+@contextlib.contextmanager
+def atomic_writer(path: str | Path) -> Iterator[BinaryIO]:
+    """A binary file that appears at ``path`` only when the block ends without error:
+    written to ``.NAME.XXXX.tmp`` in the same folder, fsynced, renamed over ``path``.
+    On any error (a full disk, a signal) the temporary file is removed and ``path`` is
+    left as it was."""
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(p), suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, p)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    with contextlib.suppress(OSError):
+        dfd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(dfd)
+        finally:
+            os.close(dfd)
+
+
+def remove_stale_temps(path: str | Path, older_than_s: float = 0.0) -> list[Path]:
+    """Delete hidden ``.NAME.*.tmp`` files an atomic write of ``path`` left behind (a
+    kill -9 or power loss mid-write); returns what was removed. Only files matching that
+    exact pattern, owned by nobody else's write (older than ``older_than_s``), go."""
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    removed = []
+    now = time.time()
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return removed
+    prefix = temp_prefix(p)
+    for name in names:
+        if not (name.startswith(prefix) and name.endswith(".tmp")):
+            continue
+        q = folder / name
+        try:
+            st = q.lstat()
+            if stat.S_ISREG(st.st_mode) and now - st.st_mtime >= older_than_s:
+                q.unlink()
+                removed.append(q)
+        except OSError:
+            continue
+    return removed
