@@ -179,29 +179,46 @@ def _run(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     tpath = truth_path(out)
+    wav = None
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         wav = WavWriter(out, cfg.audio.sample_rate)
+        truth = TruthWriter(tpath, meta)
     except OSError as exc:
+        if wav is not None:
+            wav.abort()
         raise ConfigError("--out", str(args.out), f"cannot be written ({exc.strerror}); give "
-                          "a writable path") from exc
+                          "a writable path") from None
     fs = float(cfg.audio.sample_rate)
     prog = Progress("simulate", args.seconds, " s", enabled=False if args.quiet else None)
     done = 0
-    complete = False
-    with wav, TruthWriter(tpath, meta) as truth:
+    # both files are written to hidden temporary files and renamed only when complete:
+    # a full disk or an interrupt leaves neither a partial WAV nor a partial sidecar
+    try:
         try:
             for x, recs in sim.chunks(args.seconds):
                 wav.write(x)
                 truth.write_pulses(recs)
                 done += len(x)
                 prog.update(done / fs)
-            complete = True
         finally:
-            truth.close(dict(complete=complete, samples=wav.frames,
+            prog.close()
+        wav.close()
+        try:
+            truth.close(dict(complete=True, samples=wav.frames,
                              pulses=truth.pulses_written, clipped_samples=sim.clipped,
                              full_scale_clipped_samples=wav.clipped))
-            prog.close()
+        except BaseException:
+            out.unlink(missing_ok=True)
+            raise
+    except BaseException as exc:
+        wav.abort()
+        truth.abort()
+        if isinstance(exc, OSError):
+            raise ConfigError("--out", str(args.out), f"could not be written "
+                              f"({exc.strerror or exc}); nothing was kept: free some space "
+                              "or give a path on another disk") from None
+        raise
     print(json.dumps(dict(wav=str(out), truth=str(tpath), seconds=args.seconds,
                           samples=wav.frames, sample_rate=cfg.audio.sample_rate,
                           pulses=truth.pulses_written,

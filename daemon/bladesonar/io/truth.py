@@ -9,6 +9,7 @@ at the end, e.g. clipped sample counts.
 from __future__ import annotations
 
 import json
+import os
 import math
 from pathlib import Path
 from typing import Any, Iterable
@@ -33,14 +34,30 @@ def _clean(v: Any) -> Any:
 
 
 class TruthWriter:
-    """``write_pulses`` as chunks come, ``close(summary)`` at the end."""
+    """``write_pulses`` as chunks come, ``close(summary)`` at the end.
+
+    Written to a hidden temporary file renamed to ``path`` by ``close`` (``abort`` drops
+    it), so a failed simulation leaves no half sidecar.
+    """
 
     def __init__(self, path: str | Path, meta: dict[str, Any]) -> None:
+        import tempfile
+
+        from .files import temp_prefix
+
         self.path = Path(path)
-        self._f = open(self.path, "w", encoding="utf-8")
-        self._f.write('{"meta": ' + json.dumps(_clean(meta), allow_nan=False) + ',\n"pulses": [')
+        folder = self.path.parent if str(self.path.parent) else Path(".")
+        fd, self._tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp",
+                                         dir=folder)
+        self._f = os.fdopen(fd, "w", encoding="utf-8")
         self._n = 0
         self._closed = False
+        try:
+            self._f.write('{"meta": ' + json.dumps(_clean(meta), allow_nan=False)
+                          + ',\n"pulses": [')
+        except BaseException:
+            self.abort()
+            raise
 
     def write_pulses(self, records: Iterable[dict[str, Any]]) -> None:
         for r in records:
@@ -51,10 +68,29 @@ class TruthWriter:
     def close(self, summary: dict[str, Any] | None = None) -> None:
         if self._closed:
             return
-        self._f.write("\n],\n\"summary\": " + json.dumps(_clean(summary or {}), allow_nan=False)
-                      + "}\n")
-        self._f.close()
+        try:
+            self._f.write("\n],\n\"summary\": "
+                          + json.dumps(_clean(summary or {}), allow_nan=False) + "}\n")
+            self._f.flush()
+            os.fsync(self._f.fileno())
+            self._f.close()
+            os.replace(self._tmp, self.path)
+        except BaseException:
+            self.abort()
+            raise
         self._closed = True
+
+    def abort(self) -> None:
+        """Drop the temporary file; ``path`` is left as it was."""
+        self._closed = True
+        try:
+            self._f.close()
+        except OSError:
+            pass
+        try:
+            os.unlink(self._tmp)
+        except OSError:
+            pass
 
     @property
     def pulses_written(self) -> int:
@@ -63,8 +99,11 @@ class TruthWriter:
     def __enter__(self) -> "TruthWriter":
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
 
 
 def read_truth(path: str | Path) -> dict[str, Any]:

@@ -1,79 +1,313 @@
-"""Mono WAV in and out. Reading accepts 16/32-bit PCM and 32/64-bit float; writing streams
-16-bit PCM in chunks so that hours of simulated audio never sit in memory."""
+"""Mono WAV in and out, with our own header parser.
+
+Reading accepts 8/16/24/32-bit PCM and 32/64-bit float (plain or WAVE_FORMAT_EXTENSIBLE).
+The header is walked chunk by chunk with every size checked against the file before
+anything is read; samples are then read in blocks (:class:`WavReader`), so the memory of
+reading is one block plus, for :func:`read_wav`, the float64 result, which is refused
+before reading if longer than ``max_samples``. Header faults are one InputError naming
+the file, the problem and the fix; a data chunk shorter than its header says (a recorder
+killed mid-write) is read as far as it goes with a one-line warning.
+
+Writing streams 16-bit PCM in chunks so that hours of simulated audio never sit in memory,
+to a hidden temporary file renamed into place when complete (a full disk leaves nothing).
+"""
 
 from __future__ import annotations
 
-import wave
+import logging
+import os
+import stat
+import struct
+from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO, Iterator
 
 import numpy as np
 
 from ..errors import InputError
+from .files import human_bytes, temp_prefix
+
+log = logging.getLogger(__name__)
+
+#: Longest recording :func:`read_wav` returns, samples: 8 Mi samples (3.2 minutes at
+#: 44.1 kHz, 64 MiB as float64). The analysis holds a few copies; longer recordings are
+#: refused from the header, before anything is read.
+MAX_SAMPLES = 8 << 20
+#: Most chunks walked before the data chunk, and largest fmt chunk, bytes.
+MAX_CHUNKS = 1000
+MAX_FMT_BYTES = 1024
+#: Samples per block of :meth:`WavReader.blocks`.
+BLOCK_SAMPLES = 1 << 16
+
+FIX = "record 16-bit PCM or 32-bit float mono WAV"
+
+_PCM, _FLOAT, _EXTENSIBLE = 1, 3, 0xFFFE
 
 
-def read_wav(path: str | Path, *, expect_rate: int | None = None) -> tuple[np.ndarray, int]:
-    """Samples as float64 in [-1, 1] and the sample rate; refuses what analysis cannot use."""
-    from scipy.io import wavfile
+@dataclass(frozen=True)
+class WavInfo:
+    """What the header says, checked against the file."""
 
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such file; give the path of a mono WAV recording")
-    try:
-        rate, data = wavfile.read(p, mmap=False)
-    except (ValueError, OSError) as exc:
-        raise InputError(f"{p}: not a readable WAV file ({exc}); record 16-bit PCM or "
-                         "32-bit float mono WAV") from exc
-    if data.ndim != 1:
-        if data.ndim == 2 and data.shape[1] == 1:
-            data = data[:, 0]
-        else:
-            raise InputError(f"{p}: has {data.shape[1]} channels; bladesonar needs mono. "
-                             f"Take one channel, e.g. 'sox {p.name} -c 1 mono.wav remix 1'")
-    if expect_rate is not None and rate != expect_rate:
-        raise InputError(f"{p}: sample rate is {rate} Hz but the config says "
-                         f"audio.sample_rate = {expect_rate}; set audio.sample_rate: {rate} "
-                         "in the config (and a matching waveform.pri_samples) or resample "
-                         "the recording")
-    if data.dtype == np.int16:
-        x = data.astype(np.float64) / 32768.0
-    elif data.dtype == np.int32:
-        x = data.astype(np.float64) / 2147483648.0
-    elif data.dtype == np.uint8:
-        x = (data.astype(np.float64) - 128.0) / 128.0
-    elif data.dtype in (np.float32, np.float64):
-        x = data.astype(np.float64)
+    rate: int
+    channels: int
+    bits: int
+    float_format: bool
+    data_offset: int
+    frames: int
+
+    @property
+    def block_align(self) -> int:
+        return self.channels * self.bits // 8
+
+    @property
+    def seconds(self) -> float:
+        return self.frames / self.rate
+
+
+def _bad(p: Path, problem: str) -> InputError:
+    return InputError(f"{p}: not a readable WAV file ({problem}); {FIX}")
+
+
+def parse_header(f: BinaryIO, size: int, p: Path) -> WavInfo:
+    """Walk the RIFF chunks of an open file of ``size`` bytes up to the data chunk."""
+    head = f.read(12)
+    if len(head) < 12:
+        raise _bad(p, f"{len(head)} bytes, shorter than a WAV header")
+    if head[:4] != b"RIFF" or head[8:12] != b"WAVE":
+        what = "RF64/big-endian WAV" if head[:4] in (b"RF64", b"RIFX") else "no RIFF/WAVE header"
+        raise _bad(p, what)
+    pos = 12
+    fmt: tuple[int, int, int, int, int] | None = None
+    for _ in range(MAX_CHUNKS):
+        f.seek(pos)
+        ch = f.read(8)
+        if len(ch) < 8:
+            raise _bad(p, "no data chunk" if fmt else "no fmt chunk")
+        cid, csize = ch[:4], struct.unpack("<I", ch[4:])[0]
+        body = pos + 8
+        if cid == b"fmt ":
+            if not 16 <= csize <= MAX_FMT_BYTES or body + csize > size:
+                raise _bad(p, f"fmt chunk of {csize} bytes")
+            raw = f.read(csize)
+            tag, channels, rate, _, align, bits = struct.unpack("<HHIIHH", raw[:16])
+            if tag == _EXTENSIBLE:
+                if csize < 40:
+                    raise _bad(p, "extensible fmt chunk too short")
+                tag = struct.unpack("<H", raw[24:26])[0]
+            fmt = (tag, channels, rate, align, bits)
+        elif cid == b"data":
+            if fmt is None:
+                raise _bad(p, "data chunk before the fmt chunk")
+            return _info(p, fmt, body, csize, size)
+        elif body + csize > size:
+            raise _bad(p, f"chunk {cid!r} of {human_bytes(csize)} runs past the end of "
+                          "the file")
+        pos = body + csize + (csize & 1)
+    raise _bad(p, f"more than {MAX_CHUNKS} chunks before the data")
+
+
+def _info(p: Path, fmt: tuple[int, int, int, int, int], offset: int, declared: int,
+          size: int) -> WavInfo:
+    tag, channels, rate, align, bits = fmt
+    if tag not in (_PCM, _FLOAT):
+        raise _bad(p, f"sample format tag {tag:#x}, not PCM or float")
+    if channels == 0:
+        raise _bad(p, "zero channels")
+    if not 1000 <= rate <= 1_000_000:
+        raise _bad(p, f"sample rate {rate} Hz")
+    ok_bits = (8, 16, 24, 32) if tag == _PCM else (32, 64)
+    if bits not in ok_bits:
+        raise InputError(f"{p}: {bits}-bit {'float' if tag == _FLOAT else 'PCM'} samples are "
+                         f"not supported; {FIX}")
+    if align != channels * bits // 8:
+        raise _bad(p, f"block align {align} for {channels} channels of {bits} bits")
+    avail = size - offset
+    if declared > avail:
+        log.warning("%s: the data chunk says %d bytes but the file holds %d after the "
+                    "header (cut short while recording?); reading what is there",
+                    p, declared, max(avail, 0))
+        declared = max(avail, 0)
+    frames = declared // align
+    if frames == 0:
+        raise InputError(f"{p}: the WAV file holds no samples; {FIX}")
+    return WavInfo(rate=rate, channels=channels, bits=bits, float_format=tag == _FLOAT,
+                   data_offset=offset, frames=frames)
+
+
+def _to_float(raw: bytes, info: WavInfo) -> np.ndarray:
+    """Interleaved sample bytes -> float64 in [-1, 1] (first channel only)."""
+    b = info.bits
+    if info.float_format:
+        # NaN and inf are kept: the analysis refuses them with its own message
+        x = np.frombuffer(raw, dtype="<f4" if b == 32 else "<f8").astype(np.float64)
+    elif b == 8:
+        x = (np.frombuffer(raw, dtype=np.uint8).astype(np.float64) - 128.0) / 128.0
+    elif b == 16:
+        x = np.frombuffer(raw, dtype="<i2").astype(np.float64) / 32768.0
+    elif b == 24:
+        u = np.frombuffer(raw, dtype=np.uint8).reshape(-1, 3).astype(np.int32)
+        v = u[:, 0] | (u[:, 1] << 8) | (u[:, 2] << 16)
+        x = np.where(v >= 1 << 23, v - (1 << 24), v).astype(np.float64) / 8388608.0
     else:
-        raise InputError(f"{p}: sample type {data.dtype} is not supported; use 16-bit PCM "
-                         "or 32-bit float")
-    return x, int(rate)
+        x = np.frombuffer(raw, dtype="<i4").astype(np.float64) / 2147483648.0
+    return x[::info.channels] if info.channels > 1 else x
+
+
+class WavReader:
+    """A WAV file opened for reading in blocks: memory is one block whatever its length."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = p = Path(path)
+        try:
+            st = os.stat(p)
+            if not stat.S_ISREG(st.st_mode):
+                what = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+                raise InputError(f"{p}: is {what}; give the path of a mono WAV recording")
+            self._f = open(p, "rb")
+        except FileNotFoundError:
+            raise InputError(f"{p}: no such file; give the path of a mono WAV "
+                             "recording") from None
+        except OSError as exc:
+            raise InputError(f"{p}: cannot be read ({exc.strerror or exc}); check the "
+                             "path") from None
+        try:
+            self.info = parse_header(self._f, os.fstat(self._f.fileno()).st_size, p)
+        except OSError as exc:
+            self._f.close()
+            raise InputError(f"{p}: cannot be read ({exc.strerror or exc}); check the "
+                             "disk") from None
+        except BaseException:
+            self._f.close()
+            raise
+
+    def blocks(self, block_samples: int = BLOCK_SAMPLES,
+               max_frames: int | None = None) -> Iterator[np.ndarray]:
+        """float64 blocks of the first channel, in order."""
+        info = self.info
+        left = info.frames if max_frames is None else min(info.frames, max_frames)
+        self._f.seek(info.data_offset)
+        while left > 0:
+            n = min(block_samples, left)
+            try:
+                raw = self._f.read(n * info.block_align)
+            except OSError as exc:
+                raise InputError(f"{self.path}: cannot be read ({exc.strerror or exc}); "
+                                 "check the disk") from None
+            whole = len(raw) // info.block_align
+            if whole == 0:
+                return
+            yield _to_float(raw[:whole * info.block_align], info)
+            left -= whole
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> "WavReader":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read_wav(path: str | Path, *, expect_rate: int | None = None,
+             max_samples: int = MAX_SAMPLES) -> tuple[np.ndarray, int]:
+    """Samples as float64 in [-1, 1] and the sample rate; refuses what analysis cannot use
+    (from the header, before reading the samples)."""
+    with WavReader(path) as r:
+        p, info = r.path, r.info
+        if info.channels != 1:
+            raise InputError(f"{p}: has {info.channels} channels; bladesonar needs mono. "
+                             f"Take one channel, e.g. 'sox {p.name} -c 1 mono.wav remix 1'")
+        if expect_rate is not None and info.rate != expect_rate:
+            raise InputError(f"{p}: sample rate is {info.rate} Hz but the config says "
+                             f"audio.sample_rate = {expect_rate}; set audio.sample_rate: "
+                             f"{info.rate} in the config (and a matching "
+                             "waveform.pri_samples) or resample the recording")
+        if info.frames > max_samples:
+            keep = max_samples / info.rate
+            raise InputError(f"{p}: {info.seconds:.0f} s long; this command reads at most "
+                             f"{max_samples} samples ({keep:.0f} s at {info.rate} Hz); cut "
+                             f"it, e.g. 'sox {p.name} part.wav trim 0 {keep:.0f}'")
+        x = np.empty(info.frames, dtype=np.float64)
+        n = 0
+        for block in r.blocks():
+            x[n:n + len(block)] = block
+            n += len(block)
+    return x[:n], int(info.rate)
 
 
 class WavWriter:
     """Streams float samples in [-1, 1] to a 16-bit mono WAV; values beyond are clipped
-    (and counted) so that a stress test's deliberate clipping and an accident look alike."""
+    (and counted) so that a stress test's deliberate clipping and an accident look alike.
+
+    The samples go to a hidden ``.NAME.XXXX.tmp`` in the same folder, renamed to ``path``
+    by :meth:`close` after the header sizes are filled in and an fsync; :meth:`abort` (or
+    leaving a ``with`` block by an exception) removes it, so a failed write (a full disk)
+    never leaves a partial WAV.
+    """
 
     def __init__(self, path: str | Path, rate: int) -> None:
+        import tempfile
+
         self.path = Path(path)
-        self._w = wave.open(str(self.path), "wb")
-        self._w.setnchannels(1)
-        self._w.setsampwidth(2)
-        self._w.setframerate(int(rate))
+        self.rate = int(rate)
+        folder = self.path.parent if str(self.path.parent) else Path(".")
+        fd, self._tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp",
+                                         dir=folder)
+        self._file = os.fdopen(fd, "wb")
         self.frames = 0
         self.clipped = 0
+        try:
+            self._file.write(self._header(0))
+        except BaseException:
+            self.abort()
+            raise
+
+    def _header(self, frames: int) -> bytes:
+        data = 2 * frames
+        return (b"RIFF" + struct.pack("<I", 36 + data) + b"WAVEfmt "
+                + struct.pack("<IHHIIHH", 16, 1, 1, self.rate, 2 * self.rate, 2, 16)
+                + b"data" + struct.pack("<I", data))
 
     def write(self, x: np.ndarray) -> None:
         x = np.asarray(x, dtype=np.float64)
         over = np.abs(x) > 32767.0 / 32768.0
         self.clipped += int(np.count_nonzero(over))
         q = np.clip(np.round(x * 32768.0), -32768, 32767).astype("<i2")
-        self._w.writeframesraw(q.tobytes())
+        self._file.write(q.tobytes())
         self.frames += len(q)
 
     def close(self) -> None:
-        self._w.close()
+        """Fill in the header sizes, fsync and rename into place."""
+        if self._file.closed:
+            return
+        try:
+            self._file.seek(0)
+            self._file.write(self._header(self.frames))
+            self._file.flush()
+            os.fsync(self._file.fileno())
+            self._file.close()
+            os.replace(self._tmp, self.path)
+        except BaseException:
+            self.abort()
+            raise
+
+    def abort(self) -> None:
+        """Drop the temporary file; ``path`` is left as it was."""
+        try:
+            self._file.close()
+        except OSError:
+            pass
+        try:
+            os.unlink(self._tmp)
+        except OSError:
+            pass
 
     def __enter__(self) -> "WavWriter":
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
