@@ -384,42 +384,15 @@ def to_mapping(cfg: Any) -> dict[str, Any]:
     return data
 
 
-def _yaml_lines(text: str) -> tuple[Any, dict[str, int]]:
-    import yaml
-
-    node = yaml.compose(text, Loader=yaml.SafeLoader)
-    lines: dict[str, int] = {}
-
-    def walk(n: Any, prefix: str) -> None:
-        if isinstance(n, yaml.MappingNode):
-            for k, v in n.value:
-                key = f"{prefix}{k.value}"
-                lines[key] = k.start_mark.line + 1
-                walk(v, key + ".")
-
-    if node is not None:
-        walk(node, "")
-    return yaml.safe_load(text), lines
-
-
 def load(path: str | Path | None) -> Config:
-    """Read and validate a YAML config file; None gives the defaults."""
+    """Read and validate a YAML config file; None gives the defaults. The file is read
+    and parsed with hard limits (size, UTF-8, no aliases, depth): io/safe_yaml.py."""
     if path is None:
         return Config()
-    import yaml
+    from .io.safe_yaml import load_yaml_file
 
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError("--config", str(path), f"cannot be read ({exc.strerror}); give the "
-                          "path of a YAML file such as config/bladesonar.example.yaml") from exc
-    try:
-        data, lines = _yaml_lines(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise ConfigError("<yaml>", str(path), f"is not valid YAML: {exc}", source=str(p),
-                          line=(mark.line + 1) if mark else None) from exc
+    data, lines = load_yaml_file(p, key="--config")
     cfg = from_mapping(data, source=str(p), lines=lines)
     return dataclasses.replace(cfg, base_dir=str(p.resolve().parent))
 
