@@ -40,6 +40,12 @@ def short_repr(value: object, limit: int = MAX_REPR) -> str:
     return s if len(s) <= limit else s[:limit - 3] + "..."
 
 
+def one_line(text: str, limit: int = 120) -> str:
+    """``text`` on one line, cut to ``limit`` characters (a library's message in ours)."""
+    s = " ".join(str(text).split())
+    return s if len(s) <= limit else s[:limit - 3] + "..."
+
+
 def human_bytes(n: int) -> str:
     """1048576 -> '1 MiB' (for limits in messages)."""
     for unit, size in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):

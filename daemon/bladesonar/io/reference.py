@@ -28,7 +28,8 @@ import numpy as np
 
 from ..analysis import REFERENCE_VERSION, Reference
 from ..errors import ReferenceFileError, ReferenceMissingError
-from .files import NotAFile, TooLarge, atomic_writer, human_bytes, read_capped, short_repr
+from .files import NotAFile, TooLarge, atomic_writer, human_bytes, one_line, read_capped, \
+    short_repr
 
 FORMAT = "bladesonar-reference"
 #: Container version: 2 adds ``file_format`` and ``sha256`` to the metadata. Files without
@@ -283,7 +284,7 @@ def parse_reference(data: bytes, name: str = "reference") -> Reference:
     except (zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, EOFError, OSError,
             ValueError, KeyError, IndexError, TypeError, OverflowError, RecursionError,
             NotImplementedError, RuntimeError, UnicodeError, MemoryError) as exc:
-        why = short_repr(str(exc) or type(exc).__name__, 120).strip("'\"")
+        why = one_line(str(exc) or type(exc).__name__)
         raise ReferenceFileError(f"{name}: not a bladesonar reference file, or a damaged one "
                                  f"({type(exc).__name__}: {why}); {REMAKE}") from None
     return Reference(table=table, mean_pulse=mean_pulse, meta=meta)

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
-from .files import NotAFile, TooLarge, human_bytes, read_capped, short_repr
+from .files import NotAFile, TooLarge, human_bytes, one_line, read_capped
 
 #: Largest config or scene file, bytes. The commented example with every key is 7 kB;
 #: parsing 256 KiB takes about a second with libyaml (several without).
@@ -37,11 +37,9 @@ def _one_line(exc: Exception) -> tuple[str, int | None]:
     """A YAML exception as one line and the 1-based line it points at."""
     mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
     problem = getattr(exc, "problem", None) or getattr(exc, "context", None) or str(exc)
-    problem = " ".join(str(problem).split())
     if mark is not None:
-        return f"{short_repr(problem, 120).strip(chr(39))} (column {mark.column + 1})", \
-            mark.line + 1
-    return short_repr(problem, 120).strip("'"), None
+        return f"{one_line(problem)} (column {mark.column + 1})", mark.line + 1
+    return one_line(problem), None
 
 
 def _check_events(text: str, loader: type, key: str, source: str) -> None:
@@ -52,9 +50,10 @@ def _check_events(text: str, loader: type, key: str, source: str) -> None:
     for ev in yaml.parse(text, Loader=loader):
         if isinstance(ev, yaml.AliasEvent):
             line = ev.start_mark.line + 1 if ev.start_mark else None
-            raise ConfigError("<yaml>", source, f"uses a YAML alias (*{short_repr(ev.anchor, 40).strip(chr(39))}); "
-                              "aliases are not accepted in bladesonar files: write the "
-                              "value out", source=source, line=line)
+            raise ConfigError("<yaml>", source, f"uses a YAML alias "
+                              f"(*{one_line(ev.anchor, 40)}); aliases are not accepted in "
+                              "bladesonar files: write the value out", source=source,
+                              line=line)
         if isinstance(ev, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
             depth += 1
             if depth > MAX_DEPTH:
@@ -89,7 +88,7 @@ def parse_yaml(text: str, *, source: str, key: str = "--config") -> tuple[Any, d
     except (ValueError, OverflowError, RecursionError, TypeError) as exc:
         # e.g. an integer of more than 4300 digits, or a key that cannot be hashed
         why = ("a number of more than 4300 digits" if "digits" in str(exc)
-               else short_repr(str(exc), 100).strip("'"))
+               else one_line(str(exc), 100))
         raise ConfigError("<yaml>", source, f"holds a value bladesonar cannot read ({why})",
                           source=source) from None
     lines: dict[str, int] = {}
