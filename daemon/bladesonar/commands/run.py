@@ -15,7 +15,9 @@ it: RestartPreventExitStatus=78), 2 for other errors (retried by systemd).
 
 Signals: SIGTERM/SIGINT stop gracefully (availability offline, devices closed); SIGHUP
 re-reads the config (a bad new config is logged and the old one keeps running) and the
-reference.
+reference. A missing or invalid reference is never an exit: the daemon publishes the
+status (reference_missing, reference_invalid with the reason) and waits for a valid one;
+a replaced or deleted reference file is noticed within a few seconds without SIGHUP.
 
 examples:
   bladesonar run --config /etc/bladesonar/bladesonar.yaml
@@ -39,20 +41,33 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def load_reference_for(cfg):
-    """The daemon's reference, checked against the running config, with a content id."""
-    import hashlib
-
+    """The daemon's reference, validated, checked against the running config, with the
+    id of the bytes it was read from."""
     from ..analysis import check_compatible
-    from ..io.reference import load_reference
+    from ..io.reference import read_reference
 
-    path = cfg.reference_path
-    ref = load_reference(path)
+    ref, digest = read_reference(cfg.reference_path)
     check_compatible(ref, cfg)
-    ref.meta["id"] = hashlib.sha256(path.read_bytes()).hexdigest()[:12]
+    ref.meta["id"] = digest[:12]
     return ref
 
 
+#: Hidden temporary files of an interrupted reference write older than this are removed
+#: at start (younger ones may belong to a 'bladesonar reference --live' writing now).
+STALE_TEMP_S = 60.0
+
+
 def run(args: argparse.Namespace) -> int:
+    # Before anything slow (imports of numpy, the config, the broker): a SIGHUP's default
+    # action is to terminate, so one sent early (systemctl reload during start) would kill
+    # the daemon. Remember it and reload once the service runs.
+    import signal
+
+    early_hup: list[int] = []
+    signal.signal(signal.SIGHUP, lambda *_: early_hup.append(1))
+
+    import logging
+
     from .. import config
     from ..errors import ConfigError, InputError
     from ..live import LiveAnalyzer
@@ -71,6 +86,10 @@ def run(args: argparse.Namespace) -> int:
         # EX_CONFIG: the unit's RestartPreventExitStatus stops a restart loop on a bad file
         exc.exit_code = EXIT_CONFIG
         raise
+    from ..io.files import remove_stale_temps
+
+    for q in remove_stale_temps(cfg.reference_path, older_than_s=STALE_TEMP_S):
+        logging.getLogger(__name__).info("removed %s, left by an interrupted write", q)
     svc = Service(cfg, config_path=args.config, audio_factory=open_audio,
                   publisher_factory=make_publisher,
                   analyzer_factory=lambda c, r: LiveAnalyzer(c, r,
@@ -78,4 +97,6 @@ def run(args: argparse.Namespace) -> int:
                   reference_loader=load_reference_for, notifier=make_notifier(),
                   max_seconds=args.seconds)
     svc.install_signal_handlers()
+    if early_hup:
+        svc.request_reload()
     return svc.run()

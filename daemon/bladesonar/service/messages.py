@@ -37,7 +37,7 @@ DIRECTIONS = ("same", "reversed", "stopped", "unknown")
 #: Values of the state's ``rotation`` (absolute, seen from the device), or null.
 ROTATIONS = ("cw", "ccw")
 #: Event kinds the daemon publishes.
-EVENT_KINDS = ("reversed", "started", "stopped", "reference_missing")
+EVENT_KINDS = ("reversed", "started", "stopped", "reference_missing", "reference_invalid")
 
 #: The state payload's keys, in order; missing estimate fields are sent as null.
 STATE_KEYS = ("direction", "rotation", "rotating", "rate_hz", "rpm", "relative_rate",

@@ -18,11 +18,12 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .. import config as config_mod
-from ..errors import BladesonarError, ReferenceFileError
+from ..errors import BladesonarError, ReferenceMissingError
 
 log = logging.getLogger(__name__)
 
-#: How often the loop looks for a reference file that is missing (also on SIGHUP).
+#: How often the loop looks for a reference file that is missing or invalid (also on
+#: SIGHUP), and stats the one in use to notice it replaced or deleted.
 REFERENCE_POLL_S = 2.0
 #: Seconds without a captured pulse before the audio path is reopened.
 AUDIO_STALL_S = 5.0
@@ -86,6 +87,9 @@ class Service:
         self._ready_sent = False
         self._last_state: dict[str, Any] | None = None
         self._reference_problem: str | None = None
+        #: stat signature of the reference file when it was last read (None: absent)
+        self._reference_sig: tuple | None = None
+        self._next_reference_check = 0.0
         self._signal_problem_text: str | None = None
         self._cpu_mark = (0.0, 0.0)
         #: end of the captured period -> its state handed to the publisher, seconds
@@ -124,6 +128,11 @@ class Service:
                 if self._reload.is_set():
                     self._reload.clear()
                     self._do_reload()
+                if self.analyzer is not None and now >= self._next_reference_check:
+                    self._next_reference_check = now + REFERENCE_POLL_S
+                    if self._reference_signature() != self._reference_sig:
+                        log.info("the reference file changed; reading it again")
+                        self.analyzer = None
                 if self.analyzer is None and not self._load_reference():
                     self._stop.wait(REFERENCE_POLL_S)
                     continue
@@ -214,25 +223,50 @@ class Service:
         self._close_audio()
         self._last_state = None
 
+    def _reference_signature(self) -> tuple | None:
+        """(device, inode, size, mtime) of the reference file, None if absent: a cheap
+        stat that tells a replaced or deleted reference from the one in use."""
+        try:
+            st = os.stat(self.cfg.reference_path)
+        except OSError:
+            return None
+        return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
     def _load_reference(self) -> bool:
+        """Load and check the reference; a missing or invalid one is a published status
+        (never an exit: under systemd that would be a restart loop) and is retried when
+        the file changes or on SIGHUP."""
+        sig = self._reference_signature()
+        if self._reference_problem is not None and sig == self._reference_sig:
+            return False    # same file as the failed attempt: nothing new to read
+        self._reference_sig = sig
         try:
             ref = self.reference_loader(self.cfg)
-        except ReferenceFileError as exc:
-            problem = str(exc)
+            analyzer = self.analyzer_factory(self.cfg, ref)
+        except Exception as exc:  # noqa: BLE001 - a bad reference must not stop the daemon
+            missing = isinstance(exc, ReferenceMissingError)
+            if not isinstance(exc, BladesonarError):
+                log.exception("the reference could not be used (a bug: please report it)")
+            problem = str(exc) or type(exc).__name__
             if problem != self._reference_problem:
                 self._reference_problem = problem
                 log.error("%s", problem)
-                self.notifier.status(f"waiting for a reference: {problem}")
-                self.publisher.publish_event("reference_missing", detail=problem)
+                self.notifier.status(f"waiting for a reference: {problem}" if missing
+                                     else f"reference invalid: {problem}")
+                status = "reference_missing" if missing else "reference_invalid"
+                self.publisher.publish_event(status, detail=problem)
                 self.publisher.publish_state({"direction": "unknown", "rotation": None,
                                               "rate_hz": None, "rpm": None,
                                               "relative_rate": None, "confidence": 0.0,
                                               "rotating": None, "reference": None,
-                                              "status": "reference_missing"})
+                                              "status": status,
+                                              **({} if missing else {"detail": problem})})
+            self.reference = None
+            self._close_audio()     # nothing reads it while we wait: no xruns piling up
             return False
         self._reference_problem = None
         self.reference = ref
-        self.analyzer = self.analyzer_factory(self.cfg, ref)
+        self.analyzer = analyzer
         log.info("reference loaded: %s (%.3f Hz, %s)", ref.meta.get("id"),
                  ref.meta.get("rate_hz", float("nan")), ref.meta.get("direction"))
         return True
@@ -275,6 +309,7 @@ class Service:
             self.publisher.start()
         # The reference is re-read on every reload (a new one may have been recorded).
         self.analyzer = None
+        self._reference_problem = None
         log.info("configuration reloaded from %s", self.config_path)
         if self._ready_sent:
             # the reload is done (systemctl reload returns); re-alignment shows in STATUS
