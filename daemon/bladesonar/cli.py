@@ -45,6 +45,16 @@ def single_threaded_blas() -> None:
         os.environ.setdefault(var, "1")
 
 
+#: Longest error message printed, characters: the last guard of "one line", whatever a
+#: message embeds (paths are at most 4096).
+MAX_ERROR_CHARS = 5000
+
+
+def _one_line(msg: str) -> str:
+    msg = " ".join(msg.split()) if "\n" in msg or "\r" in msg else msg
+    return msg if len(msg) <= MAX_ERROR_CHARS else msg[:MAX_ERROR_CHARS - 3] + "..."
+
+
 def main(argv: list[str] | None = None) -> int:
     single_threaded_blas()
     parser = build_parser()
@@ -55,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except BladesonarError as exc:
-        print(f"bladesonar {args.command}: error: {exc}", file=sys.stderr)
+        print(f"bladesonar {args.command}: error: {_one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         return 130

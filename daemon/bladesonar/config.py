@@ -18,6 +18,9 @@ from typing import Any, Mapping
 from .errors import ConfigError
 
 _UNSET = object()
+#: Longest text value (names, paths, schedules), characters: a topic, a file name or a
+#: PCM name is far shorter; a longer one is a mistake, not a setting.
+MAX_TEXT = 1024
 
 
 def opt(default: Any, doc: str, *, lo: float | None = None, hi: float | None = None,
@@ -289,6 +292,8 @@ def _check_value(key: str, f: dataclasses.Field, value: Any, lines: Mapping[str,
     elif tp is str:
         if not isinstance(value, str) or not value:
             fail(_allowed_text(md, "a non-empty string"))
+        if len(value) > MAX_TEXT:
+            fail(f"must be at most {MAX_TEXT} characters long (this one has {len(value)})")
     if md.get("choices") is not None and value not in md["choices"]:
         close = difflib.get_close_matches(str(value), [str(c) for c in md["choices"]], 1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""

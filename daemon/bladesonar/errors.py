@@ -18,17 +18,25 @@ class ConfigError(BladesonarError):
 
     def __init__(self, key: str, value: object, allowed: str, *, source: str | None = None,
                  line: int | None = None) -> None:
-        key = str(key) if len(str(key)) <= 80 else str(key)[:77] + "..."
+        key = _printable(str(key), 80)
         self.key, self.value, self.allowed = key, value, allowed
         self.source, self.line = source, line
         where = ""
         if source:
+            source = _printable(str(source), 4096)
             where = f"{source}:{line}: " if line else f"{source}: "
         from .io.files import short_repr  # reprs are bounded: a value may be huge
 
-        # a file name (--config, --scene, <yaml>) is kept whole, up to PATH_MAX
-        limit = 4096 if key.startswith(("--", "<")) else 80
+        # the file named by --config/--scene/<yaml> is kept whole (up to PATH_MAX)
+        limit = 4096 if key in ("--config", "--scene", "--out", "<yaml>") else 80
         super().__init__(f"{where}{key} = {short_repr(value, limit)}: {allowed}")
+
+
+def _printable(s: str, limit: int) -> str:
+    """``s`` on one line (control characters escaped), cut to ``limit`` characters."""
+    if not s.isprintable():
+        s = s.encode("unicode_escape").decode("ascii")
+    return s if len(s) <= limit else s[:limit - 3] + "..."
 
 
 class InputError(BladesonarError):
