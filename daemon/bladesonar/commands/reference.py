@@ -74,7 +74,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         if not args.wav or not args.out:
             raise InputError("give a recording and --out REF (or --live to record one)")
-        x, _ = read_wav(args.wav, expect_rate=cfg.audio.sample_rate)
+        from ..io.wav import REFERENCE_SAMPLES
+
+        x, _ = read_wav(args.wav, expect_rate=cfg.audio.sample_rate,
+                        max_samples=REFERENCE_SAMPLES, cut=True)
         out_path = args.out
     ref = build_reference(x, cfg, args.direction)
     save_reference(ref, out_path)

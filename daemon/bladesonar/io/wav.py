@@ -29,10 +29,15 @@ from .files import human_bytes, temp_prefix
 
 log = logging.getLogger(__name__)
 
-#: Longest recording :func:`read_wav` returns, samples: 8 Mi samples (3.2 minutes at
-#: 44.1 kHz, 64 MiB as float64). The analysis holds a few copies; longer recordings are
-#: refused from the header, before anything is read.
-MAX_SAMPLES = 8 << 20
+#: Longest recording :func:`read_wav` returns by default, samples: 6 Mi samples (2 min
+#: 22 s at 44.1 kHz, 48 MiB as float64), which ``analyze`` holds in under 200 MiB peak
+#: RSS (measured; the analysis keeps a few copies). Longer recordings are refused from the
+#: header, before anything is read.
+MAX_SAMPLES = 6 << 20
+#: What ``reference`` reads: the first 1 Mi samples (23.8 s at 44.1 kHz; a reference
+#: needs 20 s). Building a reference costs about 5 MiB per second of audio, so longer
+#: recordings are cut to this with a warning rather than read whole.
+REFERENCE_SAMPLES = 1 << 20
 #: Most chunks walked before the data chunk, and largest fmt chunk, bytes.
 MAX_CHUNKS = 1000
 MAX_FMT_BYTES = 1024
@@ -210,9 +215,10 @@ class WavReader:
 
 
 def read_wav(path: str | Path, *, expect_rate: int | None = None,
-             max_samples: int = MAX_SAMPLES) -> tuple[np.ndarray, int]:
+             max_samples: int = MAX_SAMPLES, cut: bool = False) -> tuple[np.ndarray, int]:
     """Samples as float64 in [-1, 1] and the sample rate; refuses what analysis cannot use
-    (from the header, before reading the samples)."""
+    (from the header, before reading the samples). A recording longer than
+    ``max_samples`` is refused, or with ``cut`` read only that far (a warning says so)."""
     with WavReader(path) as r:
         p, info = r.path, r.info
         if info.channels != 1:
@@ -223,14 +229,19 @@ def read_wav(path: str | Path, *, expect_rate: int | None = None,
                              f"audio.sample_rate = {expect_rate}; set audio.sample_rate: "
                              f"{info.rate} in the config (and a matching "
                              "waveform.pri_samples) or resample the recording")
-        if info.frames > max_samples:
+        frames = info.frames
+        if frames > max_samples and cut:
+            log.warning("%s: %.0f s long; using its first %.1f s", p, info.seconds,
+                        max_samples / info.rate)
+            frames = max_samples
+        elif frames > max_samples:
             keep = max_samples / info.rate
             raise InputError(f"{p}: {info.seconds:.0f} s long; this command reads at most "
                              f"{max_samples} samples ({keep:.0f} s at {info.rate} Hz); cut "
                              f"it, e.g. 'sox {p.name} part.wav trim 0 {keep:.0f}'")
-        x = np.empty(info.frames, dtype=np.float64)
+        x = np.empty(frames, dtype=np.float64)
         n = 0
-        for block in r.blocks():
+        for block in r.blocks(max_frames=frames):
             x[n:n + len(block)] = block
             n += len(block)
     return x[:n], int(info.rate)
