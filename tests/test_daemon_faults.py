@@ -1,0 +1,189 @@
+"""Faults around the daemon and the writers, on the real processes (sim backend, no broker):
+a reference corrupted and restored under a running daemon, a SIGHUP during start-up,
+temporary files left by a kill -9, and a full disk under ``simulate``."""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from bladesonar import config
+from bladesonar.analysis import build_reference
+from bladesonar.io.reference import save_reference
+from bladesonar.sim import load_scene
+from bladesonar.sim.render import simulate
+from bladesonar.sim.schedule import Schedule
+
+from loopback import ROOT, SCENE, bladesonar_cmd
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def reference_file(tmp_path_factory) -> Path:
+    cfg = config.Config()
+    x, _ = simulate(load_scene(SCENE), cfg, 8.0, schedule=Schedule.constant(0.45, "ccw"),
+                    snr_db=20.0, seed=5)
+    return save_reference(build_reference(x, cfg, "ccw"),
+                          tmp_path_factory.mktemp("ref") / "reference.npz")
+
+
+def _config(tmp_path: Path, **sim) -> Path:
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(json.dumps({
+        "audio": {"backend": "sim"}, "daemon": {"state_dir": str(tmp_path / "state"),
+                                                "window_s": 2},
+        "mqtt": {"publish_interval_s": 0.5},
+        "sim": {"scene": str(SCENE), "schedule": "ccw:0.45:120", "realtime": True, **sim}}))
+    (tmp_path / "state").mkdir(exist_ok=True)
+    return cfg
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env.pop("NOTIFY_SOCKET", None)
+    return env
+
+
+class Daemon:
+    """``bladesonar run`` with its stdout (JSON lines) read in a thread."""
+
+    def __init__(self, cfg: Path, log: Path, seconds: float | None = None) -> None:
+        args = ["run", "--config", str(cfg)] + (["--seconds", str(seconds)] if seconds else [])
+        self.proc = subprocess.Popen(bladesonar_cmd(*args), stdout=subprocess.PIPE,
+                                     stderr=open(log, "w"), text=True, cwd=ROOT, env=_env())
+        self.log = log
+        self.msgs: list[dict] = []
+        self._t = threading.Thread(target=self._read, daemon=True)
+        self._t.start()
+
+    def _read(self) -> None:
+        for ln in self.proc.stdout:
+            if ln.startswith("{"):
+                self.msgs.append(json.loads(ln))
+
+    def states(self) -> list[dict]:
+        return [m["payload"] for m in list(self.msgs) if m["topic"].endswith("/state")]
+
+    def wait_state(self, pred, timeout: float, after: int = 0) -> dict:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for s in self.states()[after:]:
+                if pred(s):
+                    return s
+            assert self.proc.poll() is None, f"daemon exited: {self.log.read_text()[-2000:]}"
+            time.sleep(0.1)
+        raise AssertionError(f"not seen in {timeout} s; states "
+                             f"{[s.get('status') for s in self.states()]}; log "
+                             f"{self.log.read_text()[-2000:]}")
+
+    def stop(self) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        rc = self.proc.wait(timeout=30)
+        self._t.join(timeout=5)
+        return rc
+
+
+def test_reference_corrupted_and_restored_while_running(tmp_path, reference_file):
+    """No SIGHUP: the file is stat'ed, so the daemon notices the damage within a few
+    seconds, publishes reference_invalid with the reason, keeps running, and comes back
+    when a good reference is stored again."""
+    cfg = _config(tmp_path)
+    ref = tmp_path / "state" / "reference.npz"
+    good = reference_file.read_bytes()
+    ref.write_bytes(good)
+    d = Daemon(cfg, tmp_path / "daemon.log")
+    try:
+        d.wait_state(lambda s: s["status"] == "ok", 60)
+        n = len(d.states())
+        bad = bytearray(good)
+        bad[len(bad) // 2] ^= 0x10
+        tmp = ref.with_name("swap.tmp")
+        tmp.write_bytes(bytes(bad))
+        os.replace(tmp, ref)
+        s = d.wait_state(lambda s: s["status"] == "reference_invalid", 15, after=n)
+        assert "reference.npz" in s["detail"] and s["rate_hz"] is None
+        n = len(d.states())
+        tmp.write_bytes(good)
+        os.replace(tmp, ref)
+        d.wait_state(lambda s: s["status"] == "ok", 60, after=n)
+    finally:
+        rc = d.stop()
+    log = (tmp_path / "daemon.log").read_text()
+    assert rc == 0 and "Traceback" not in log
+    kinds = [m["payload"]["kind"] for m in d.msgs if m["topic"].endswith("/event")]
+    assert kinds.count("reference_invalid") == 1
+
+
+def test_sighup_during_start_up_is_a_reload_not_a_death(tmp_path):
+    cfg = _config(tmp_path)
+    p = subprocess.Popen(bladesonar_cmd("run", "--config", str(cfg), "--seconds", "3"),
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                         cwd=ROOT, env=_env())
+    # as soon as the process catches SIGHUP (SigCgt bit 0 in /proc), i.e. while it still
+    # imports numpy and reads the config, long before the service exists
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        try:
+            status = Path(f"/proc/{p.pid}/status").read_text()
+        except OSError:
+            break
+        cgt = int(next(ln.split()[1] for ln in status.splitlines()
+                       if ln.startswith("SigCgt:")), 16)
+        if cgt & 1:
+            break
+        time.sleep(0.002)
+    p.send_signal(signal.SIGHUP)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 0, err
+    assert "configuration reloaded" in err
+
+
+def test_stale_temporary_files_are_removed_at_start(tmp_path):
+    cfg = _config(tmp_path)
+    state = tmp_path / "state"
+    stale = state / ".reference.npz.k9x1.tmp"
+    fresh = state / ".reference.npz.w2a7.tmp"
+    other = state / ".other.npz.k9x1.tmp"
+    for f in (stale, fresh, other):
+        f.write_bytes(b"half a reference")
+    old = time.time() - 3600
+    os.utime(stale, (old, old))
+    os.utime(other, (old, old))
+    r = subprocess.run(bladesonar_cmd("run", "--config", str(cfg), "--seconds", "0.5"),
+                       capture_output=True, text=True, cwd=ROOT, env=_env(), timeout=60)
+    assert r.returncode == 0, r.stderr
+    # only the stale temp of this reference goes: a young one may be a write in progress
+    assert not stale.exists() and fresh.exists() and other.exists()
+
+
+def test_simulate_on_a_full_disk_keeps_nothing_and_says_so_in_one_line(tmp_path):
+    """RLIMIT_FSIZE stands in for a full disk (the write fails with EFBIG, as ENOSPC
+    would): exit 2, one line, neither the WAV nor its truth sidecar nor a temp file."""
+    out = tmp_path / "out"
+    out.mkdir()
+
+    def small_disk() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))
+
+    r = subprocess.run(bladesonar_cmd("simulate", "--scene", str(SCENE), "--seconds", "10",
+                                      "--rate", "0.45", "--out", str(out / "x.wav"),
+                                      "--quiet"),
+                       capture_output=True, text=True, cwd=ROOT, env=_env(), timeout=120,
+                       preexec_fn=small_disk)
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("bladesonar simulate: error: --out")
+    assert "nothing was kept" in lines[0]
+    assert list(out.iterdir()) == []
