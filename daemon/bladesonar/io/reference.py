@@ -158,6 +158,8 @@ def _npy(raw: bytes, name: str, *, kind: str) -> np.ndarray:
                    f"holds {len(raw) - offset}")
     a = np.frombuffer(raw, dtype=dtype, count=count, offset=offset)
     a = a.reshape(shape, order="F" if fortran else "C")
+    if kind == "f" and dtype == np.dtype("<f8") and not fortran:
+        return a    # a read-only view of the member's bytes: no second copy
     return np.array(a, dtype=np.float64) if kind == "f" else a
 
 
