@@ -347,6 +347,27 @@ def test_discovery_configs_and_home_assistant_restart(broker, publishers, tmp_pa
 
 
 @pytest.mark.broker
+def test_a_flood_on_the_home_assistant_status_topic_logs_one_line(broker, publishers,
+                                                                 tmp_path, caplog):
+    """Any client of the broker can write homeassistant/status: 300 'online' messages
+    give one log line (not 300) and still end in a republish."""
+    cfg = make_cfg(tmp_path, broker.port, device_id="flood")
+    t = Topics.for_config(cfg)
+    n = len(discovery_messages(cfg))
+    with Subscriber(broker.port, ["homeassistant/+/flood/+/config"]) as sub:
+        pub = publishers(cfg)
+        pub.start()
+        sub.wait_until(lambda ms: len(ms) >= n and ms)
+        caplog.set_level(logging.INFO, logger="bladesonar.service.publish")
+        for _ in range(300):
+            sub.client.publish(t.ha_status, "online", qos=0)
+        sub.wait_until(lambda ms: len(ms) >= 2 * n and ms, timeout=10)
+        time.sleep(0.5)
+    lines = [r for r in caplog.records if "Home Assistant is online" in r.getMessage()]
+    assert len(lines) == 1
+
+
+@pytest.mark.broker
 def test_password_from_file_is_used_and_never_logged(tmp_path, publishers, caplog):
     passwd = shutil.which("mosquitto_passwd")
     if passwd is None:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import collections
 import json
 import logging
+import math
 import os
 import random
 import ssl
@@ -35,6 +36,9 @@ from .messages import (Message, Topics, availability_message, clean, discovery_m
                        stats_message, stats_payload)
 
 log = logging.getLogger(__name__)
+#: At most one log line per this many seconds for Home Assistant's ``online`` messages
+#: (anyone on the broker can send them; a flood once logged 25,000 lines).
+HA_LOG_INTERVAL_S = 60.0
 
 
 class Publisher(Protocol):
@@ -209,6 +213,10 @@ class MqttPublisher:
         self._down_since: float | None = None
         self._refused: str | None = None
         self._ha_timer: threading.Timer | None = None
+        #: the HA status topic is writable by any client of the broker: its log line is
+        #: rate-limited (monotonic time of the last line, messages not logged since)
+        self._ha_logged_at = -math.inf
+        self._ha_quiet = 0
 
         c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=self.client_id,
                         protocol=mqtt.MQTTv311, clean_session=True)
@@ -444,8 +452,15 @@ class MqttPublisher:
         if msg.topic != self.topics.ha_status or msg.payload.strip().lower() != b"online":
             return
         delay = random.uniform(*self.ha_delay)
-        log.info("MQTT: Home Assistant is online; republishing discovery and state in %.1f s",
-                 delay)
+        now = time.monotonic()
+        if now - self._ha_logged_at >= HA_LOG_INTERVAL_S:
+            more = (f" ({self._ha_quiet} more 'online' since the last such line)"
+                    if self._ha_quiet else "")
+            log.info("MQTT: Home Assistant is online; republishing discovery and state in "
+                     "%.1f s%s", delay, more)
+            self._ha_logged_at, self._ha_quiet = now, 0
+        else:
+            self._ha_quiet += 1
         with self._lock:
             if self._closed:
                 return
