@@ -88,3 +88,51 @@ def test_audio_counters_accumulate_across_a_reopen(tmp_path):
     assert final["xruns"] == 0
     # and the fan was tracked after the reopen (ccw = same as the reference)
     assert pubs[-1].states[-1]["direction"] == "same"
+
+
+def test_reloads_that_change_nothing_the_analysis_uses_keep_tracking(tmp_path):
+    """A reload storm with an unchanged config (or only the broker's keys changed) keeps
+    the running analyzer: no re-alignment, no pause in the published states. A tracking
+    key changed restarts it."""
+    sections = {"audio": {"backend": "sim"}, "mqtt": {"publish_interval_s": 0.1},
+                "sim": {"schedule": "ccw:0.45:120", "realtime": False}}
+    cfg_path = write_config(tmp_path / "cfg.yaml", tmp_path, **sections)
+    cfg = config.load(cfg_path)
+    x, _ = simulate(load_scene(SCENE), cfg, 12.0, schedule="ccw:0.45:12", seed=2,
+                    snr_db=20.0)
+    ref = build_reference(x, cfg, "ccw")
+    pubs: list[Collector] = []
+
+    def publisher(c):
+        pubs.append(Collector(c))
+        return pubs[-1]
+
+    svc = Service(cfg, config_path=str(cfg_path), audio_factory=open_audio,
+                  publisher_factory=publisher,
+                  analyzer_factory=lambda c, r: LiveAnalyzer(c, r, reference_id="t"),
+                  reference_loader=lambda c: ref, notifier=NullNotifier())
+    th = threading.Thread(target=svc.run, daemon=True)
+    th.start()
+    try:
+        _wait(lambda: any(s.get("status") == "ok" for s in pubs[-1].states))
+        running = svc.analyzer
+        for i in range(20):
+            svc.request_reload()
+            _wait(lambda: svc.counters.reloads == i + 1)
+        # only the broker's publish interval changes: the publisher restarts, tracking not
+        write_config(cfg_path, tmp_path, **{**sections, "mqtt": {"publish_interval_s": 0.2}})
+        svc.request_reload()
+        _wait(lambda: svc.counters.reloads == 21)
+        n = len(pubs[-1].states)
+        _wait(lambda: len(pubs[-1].states) >= n + 3)
+        assert svc.analyzer is running
+        assert pubs[-1].states[-1].get("status") == "ok"
+        # a tracking key changed: a new analyzer (it re-aligns)
+        write_config(cfg_path, tmp_path, **{**sections, "tracking": {"gate_sigma": 5.0}})
+        svc.request_reload()
+        _wait(lambda: svc.counters.reloads == 22 and svc.analyzer is not None
+              and svc.analyzer is not running)
+    finally:
+        svc.request_stop()
+        th.join(30)
+    assert not th.is_alive()

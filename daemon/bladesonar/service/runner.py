@@ -307,7 +307,19 @@ class Service:
             self.publisher.close()
             self.publisher = self.publisher_factory(new)
             self.publisher.start()
-        # The reference is re-read on every reload (a new one may have been recorded).
+        # Only what the analysis depends on restarts it: a reload that changes the broker
+        # or nothing at all (a reload storm) keeps tracking, so publishing never pauses.
+        same = (old.audio, old.waveform, old.scene, old.analysis, old.tracking, old.daemon,
+                old.sim) == (new.audio, new.waveform, new.scene, new.analysis, new.tracking,
+                             new.daemon, new.sim)
+        if same and self.analyzer is not None \
+                and self._reference_signature() == self._reference_sig:
+            log.info("configuration reloaded from %s; analysis settings and reference "
+                     "unchanged: tracking goes on", self.config_path)
+            if self._ready_sent:
+                self.notifier.ready("configuration reloaded; tracking goes on")
+            return
+        # The reference is re-read (a new one may have been recorded).
         self.analyzer = None
         self._reference_problem = None
         log.info("configuration reloaded from %s", self.config_path)
