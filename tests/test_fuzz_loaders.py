@@ -31,6 +31,7 @@ from bladesonar.io.safe_yaml import parse_yaml
 from bladesonar.io.wav import read_wav
 from bladesonar.sim import load_scene
 from bladesonar.sim.render import simulate
+from bladesonar.sim.scene import Scene
 from bladesonar.sim.schedule import Schedule
 
 from loopback import SCENE
@@ -260,6 +261,30 @@ def test_any_config_values_validate_or_give_one_error(values):
         for part in key.split("."):
             v = getattr(v, part)
         assert not (isinstance(v, float) and not math.isfinite(v)), key
+
+
+_SCENE_KEYS = ["name", "room", "room.vertices", "room.reflection", "sensor", "fan",
+               "fan.centre", "fan.blades", "fan.blade_length_m", "fan.hub_radius_m",
+               "fan.start_angle_deg", "fan.reflectivity", "coupling_gain", "schedule", "x"]
+points = st.lists(st.lists(st.floats(-1e3, 1e3) | st.sampled_from([math.nan, math.inf]),
+                           min_size=2, max_size=3), max_size=8)
+
+
+@FUZZ
+@given(changes=st.dictionaries(st.sampled_from(_SCENE_KEYS), json_values | points,
+                               max_size=4))
+def test_any_scene_values_validate_or_give_one_error(changes):
+    """The shipped scene with some values replaced by anything."""
+    data, lines = parse_yaml(Path(SCENE).read_text(), source="s.yaml", key="--scene")
+    for key, value in changes.items():
+        sec, _, name = key.rpartition(".")
+        target = data.get(sec) if sec else data
+        if isinstance(target, dict):
+            target[name] = value
+    try:
+        Scene.from_mapping(data, source="s.yaml", lines=lines)
+    except ConfigError as exc:
+        one_line(exc)
 
 
 @FUZZ

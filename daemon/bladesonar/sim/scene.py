@@ -40,6 +40,11 @@ _KEYS = {
 }
 
 
+#: Most walls (vertices) a room may have: the wall checks are quadratic and the echo paths
+#: grow with the walls; 5000 vertices once made simulate run for minutes.
+MAX_WALLS = 64
+
+
 @dataclass(frozen=True)
 class Scene:
     """Geometry and reflectivities; everything about the run itself lives elsewhere."""
@@ -142,10 +147,10 @@ class Scene:
         _check_keys(fan, "fan.", fail)
 
         verts = room.get("vertices")
-        if (not isinstance(verts, (list, tuple)) or len(verts) < 3
+        if (not isinstance(verts, (list, tuple)) or not 3 <= len(verts) <= MAX_WALLS
                 or not all(_is_point(v) for v in verts)):
-            fail("room.vertices", verts, "must be a list of at least 3 [x, y] points in "
-                 "metres, e.g. [[0, 0], [4, 0], [4, 3], [0, 3]]")
+            fail("room.vertices", verts, f"must be a list of 3 to {MAX_WALLS} [x, y] points "
+                 "in metres, e.g. [[0, 0], [4, 0], [4, 3], [0, 3]]")
         V = np.asarray(verts, dtype=np.float64)
         nw = len(V)
         seg = np.hypot(*(np.roll(V, -1, axis=0) - V).T)
