@@ -367,6 +367,25 @@ def test_a_flood_on_the_home_assistant_status_topic_logs_one_line(broker, publis
     assert len(lines) == 1
 
 
+def test_password_and_tls_files_that_are_devices_or_huge_are_refused_unread(tmp_path):
+    """mqtt.password_file: /dev/zero, or a CA file that is a device, would be read until
+    the memory runs out; they are refused in one line instead."""
+    from bladesonar.service.publish import read_password, tls_files
+
+    cfg = config.replace(config.Config(), mqtt={"host": "x", "username": "u",
+                                                "password_file": "/dev/zero"})
+    with pytest.raises(ConfigError, match="larger than 64 KiB"):
+        read_password(cfg)
+    cfg = config.replace(config.Config(), mqtt={"host": "x", "username": "u",
+                                                "password_file": str(tmp_path)})
+    with pytest.raises(ConfigError, match="directory"):
+        read_password(cfg)
+    cfg = config.replace(config.Config(), mqtt={"host": "x", "tls": True,
+                                                "ca_certs": "/dev/zero"})
+    with pytest.raises(ConfigError, match="regular file"):
+        tls_files(cfg)
+
+
 @pytest.mark.broker
 def test_password_from_file_is_used_and_never_logged(tmp_path, publishers, caplog):
     passwd = shutil.which("mosquitto_passwd")

@@ -25,6 +25,7 @@ import math
 import os
 import random
 import ssl
+import stat
 import sys
 import threading
 import time
@@ -39,6 +40,10 @@ log = logging.getLogger(__name__)
 #: At most one log line per this many seconds for Home Assistant's ``online`` messages
 #: (anyone on the broker can send them; a flood once logged 25,000 lines).
 HA_LOG_INTERVAL_S = 60.0
+#: Largest password file read, bytes (/dev/zero there must not fill the memory).
+MAX_PASSWORD_FILE = 64 << 10
+#: Largest TLS certificate or key file (a CA bundle is about 200 kB), bytes.
+MAX_PEM_FILE = 16 << 20
 
 
 class Publisher(Protocol):
@@ -82,9 +87,15 @@ def read_password(cfg: Any) -> str | None:
         raise ConfigError("mqtt.password_env", m.password_env,
                           "set only one of mqtt.password_file and mqtt.password_env")
     if m.password_file is not None:
+        from ..io.files import NotAFile, TooLarge, read_capped
+
         path = cfg.path(m.password_file)
         try:
-            text = path.read_text(encoding="utf-8")
+            text = read_capped(path, MAX_PASSWORD_FILE).decode("utf-8")
+        except (TooLarge, NotAFile) as exc:
+            raise ConfigError("mqtt.password_file", m.password_file,
+                              f"{exc} ({path}); give a small file holding the broker "
+                              "password on its first line") from None
         except OSError as exc:
             raise ConfigError("mqtt.password_file", m.password_file,
                               f"cannot be read ({exc.strerror or type(exc).__name__}: {path}); "
@@ -129,12 +140,17 @@ def tls_files(cfg: Any) -> dict[str, str]:
             continue
         path = cfg.path(value)
         try:
-            with open(path, "rb"):
-                pass
+            with open(path, "rb") as f:
+                st = os.fstat(f.fileno())
         except OSError as exc:
             raise ConfigError(f"mqtt.{key}", value,
                               f"cannot be read ({exc.strerror or type(exc).__name__}: {path}); "
                               "give a PEM file the daemon's user can read") from None
+        # OpenSSL reads the whole file: a device (/dev/zero) or a huge file is refused here
+        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_PEM_FILE:
+            raise ConfigError(f"mqtt.{key}", value,
+                              f"is not a regular file of at most {MAX_PEM_FILE >> 20} MiB "
+                              f"({path}); give a PEM file") from None
         files[key] = str(path)
     if "keyfile" in files and "certfile" not in files:
         raise ConfigError("mqtt.keyfile", m.keyfile,
