@@ -187,3 +187,80 @@ def test_simulate_on_a_full_disk_keeps_nothing_and_says_so_in_one_line(tmp_path)
     assert len(lines) == 1 and lines[0].startswith("bladesonar simulate: error: --out")
     assert "nothing was kept" in lines[0]
     assert list(out.iterdir()) == []
+
+
+@pytest.mark.broker
+def test_broker_restarts_a_reload_storm_and_a_bad_reference_through_a_real_broker(
+        tmp_path, reference_file):
+    """The daemon against mosquitto: two broker restarts, 30 SIGHUPs in a burst (the
+    config unchanged: tracking goes on), a reference corrupted then restored. It never
+    exits, states keep coming after each fault, the status goes reference_invalid and back
+    to ok, and the invalid-reference event arrives exactly once."""
+    from mosquitto import Mosquitto, Subscriber, require_mosquitto
+
+    require_mosquitto()
+    with Mosquitto(tmp_path / "broker") as broker:
+        cfg = tmp_path / "cfg.yaml"
+        cfg.write_text(json.dumps({
+            "device_id": "faults",
+            "audio": {"backend": "sim"},
+            "daemon": {"state_dir": str(tmp_path / "state"), "window_s": 2},
+            "mqtt": {"host": "127.0.0.1", "port": broker.port, "keepalive_s": 5,
+                     "publish_interval_s": 0.5},
+            "sim": {"scene": str(SCENE), "schedule": "ccw:0.45:300", "realtime": True}}))
+        (tmp_path / "state").mkdir()
+        ref = tmp_path / "state" / "reference.npz"
+        good = reference_file.read_bytes()
+        ref.write_bytes(good)
+        state_t, event_t = "bladesonar/faults/state", "bladesonar/faults/event"
+        log = tmp_path / "daemon.log"
+        sub = Subscriber(broker.port, ["bladesonar/faults/#"])
+        proc = subprocess.Popen(bladesonar_cmd("run", "--config", str(cfg)),
+                                stdout=subprocess.DEVNULL, stderr=open(log, "w"),
+                                cwd=ROOT, env=_env())
+
+        def states(ms):
+            return [json.loads(m.payload) for m in ms if m.topic == state_t]
+
+        def new_state(pred, timeout):
+            n = len(states(sub.messages))
+            return sub.wait_until(lambda ms: any(pred(s) for s in states(ms)[n:]), timeout)
+
+        try:
+            new_state(lambda s: s["status"] == "ok", 60)
+            for _ in range(2):
+                broker.stop()
+                time.sleep(1.0)
+                broker.start()
+                sub.close()
+                sub = Subscriber(broker.port, ["bladesonar/faults/#"])
+                new_state(lambda s: s["status"] == "ok", 30)
+            for _ in range(30):
+                proc.send_signal(signal.SIGHUP)
+                time.sleep(0.01)
+            new_state(lambda s: s["status"] == "ok", 10)
+            bad = bytearray(good)
+            bad[len(bad) // 3] ^= 0x01
+            (tmp_path / "state" / "swap").write_bytes(bytes(bad))
+            os.replace(tmp_path / "state" / "swap", ref)
+            new_state(lambda s: s["status"] == "reference_invalid"
+                      and "reference.npz" in s.get("detail", ""), 15)
+            (tmp_path / "state" / "swap").write_bytes(good)
+            os.replace(tmp_path / "state" / "swap", ref)
+            new_state(lambda s: s["status"] == "ok", 60)
+            assert proc.poll() is None, log.read_text()[-2000:]
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                rc = proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+                raise AssertionError(f"no exit 30 s after SIGTERM: {log.read_text()[-3000:]}")
+            kinds = [json.loads(m.payload)["kind"] for m in sub.messages
+                     if m.topic == event_t]
+            sub.close()
+    text = log.read_text()
+    assert rc == 0 and "Traceback" not in text, text[-2000:]
+    assert kinds.count("reference_invalid") == 1, kinds
+    assert text.count("tracking goes on") >= 1
