@@ -264,3 +264,47 @@ def test_broker_restarts_a_reload_storm_and_a_bad_reference_through_a_real_broke
     assert rc == 0 and "Traceback" not in text, text[-2000:]
     assert kinds.count("reference_invalid") == 1, kinds
     assert text.count("tracking goes on") >= 1
+
+
+@pytest.mark.broker
+def test_a_frozen_broker_neither_stops_the_daemon_nor_its_shutdown(tmp_path, reference_file):
+    """mosquitto stopped with SIGSTOP (accepts nothing, closes nothing): the daemon notices
+    the keepalive timeout, keeps running, and still stops within seconds on SIGTERM."""
+    from mosquitto import Mosquitto, Subscriber, require_mosquitto
+
+    require_mosquitto()
+    with Mosquitto(tmp_path / "broker") as broker:
+        cfg = tmp_path / "cfg.yaml"
+        cfg.write_text(json.dumps({
+            "device_id": "frozen", "audio": {"backend": "sim"},
+            "daemon": {"state_dir": str(tmp_path / "state"), "window_s": 2},
+            "mqtt": {"host": "127.0.0.1", "port": broker.port, "keepalive_s": 5,
+                     "publish_interval_s": 0.5},
+            "sim": {"scene": str(SCENE), "schedule": "ccw:0.45:300", "realtime": True}}))
+        (tmp_path / "state").mkdir()
+        (tmp_path / "state" / "reference.npz").write_bytes(reference_file.read_bytes())
+        log = tmp_path / "daemon.log"
+        proc = subprocess.Popen(bladesonar_cmd("run", "--config", str(cfg)),
+                                stdout=subprocess.DEVNULL, stderr=open(log, "w"),
+                                cwd=ROOT, env=_env())
+        try:
+            with Subscriber(broker.port, ["bladesonar/frozen/state"]) as sub:
+                sub.wait_until(lambda ms: any(json.loads(m.payload)["status"] == "ok"
+                                              for m in ms), 60)
+            broker.pause()
+            deadline = time.monotonic() + 20
+            while "lost the connection" not in log.read_text():
+                assert time.monotonic() < deadline, log.read_text()[-2000:]
+                assert proc.poll() is None, log.read_text()[-2000:]
+                time.sleep(0.2)
+            t0 = time.monotonic()
+            proc.send_signal(signal.SIGTERM)
+            rc = proc.wait(timeout=15)
+            took = time.monotonic() - t0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            broker.resume()
+    assert rc == 0 and took < 10, (rc, took, log.read_text()[-2000:])
+    assert "Traceback" not in log.read_text()
