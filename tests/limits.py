@@ -9,7 +9,6 @@ The peak RSS comes from wait4() on that one child.
 from __future__ import annotations
 
 import os
-import resource
 import subprocess
 import tempfile
 import threading
@@ -39,16 +38,17 @@ def run_limited(args: list[str], *, cwd: str | Path | None = None, env: dict | N
                 as_limit: int = AS_LIMIT, cpu_limit_s: int = CPU_LIMIT_S,
                 wall_limit_s: float = 60.0) -> Measured:
     """Run ``args`` with RLIMIT_AS and RLIMIT_CPU set in the child; a wall-clock timer
-    only guards against a hang (it kills; the caller asserts on the exit status)."""
+    only guards against a hang (it kills; the caller asserts on the exit status).
 
-    def limits() -> None:
-        resource.setrlimit(resource.RLIMIT_AS, (as_limit, as_limit))
-        resource.setrlimit(resource.RLIMIT_CPU, (cpu_limit_s, cpu_limit_s + 1))
-
+    The limits are set by the shell's ``ulimit`` before it execs the command (same pid,
+    so wait4 measures the command), not by ``preexec_fn``, which is unsafe when the
+    caller runs several of these from threads."""
+    limited = ["/bin/sh", "-c", f'ulimit -v {as_limit // 1024} && ulimit -t {cpu_limit_s} '
+               '&& exec "$@"', "limited", *args]
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         t0 = time.monotonic()
-        p = subprocess.Popen(args, stdout=out, stderr=err, stdin=subprocess.DEVNULL,
-                             cwd=cwd, env=env, preexec_fn=limits)
+        p = subprocess.Popen(limited, stdout=out, stderr=err, stdin=subprocess.DEVNULL,
+                             cwd=cwd, env=env)
         timer = threading.Timer(wall_limit_s, p.kill)
         timer.start()
         try:
@@ -59,6 +59,6 @@ def run_limited(args: list[str], *, cwd: str | Path | None = None, env: dict | N
         p.returncode = os.waitstatus_to_exitcode(status)
         out.seek(0)
         err.seek(0)
-        return Measured(args, p.returncode, out.read().decode("utf-8", "replace"),
+        return Measured(list(args), p.returncode, out.read().decode("utf-8", "replace"),
                         err.read().decode("utf-8", "replace"), seconds,
                         ru.ru_maxrss / 1024.0)
