@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import os
-import resource
 import signal
 import subprocess
 import threading
@@ -171,16 +170,13 @@ def test_simulate_on_a_full_disk_keeps_nothing_and_says_so_in_one_line(tmp_path)
     would): exit 2, one line, neither the WAV nor its truth sidecar nor a temp file."""
     out = tmp_path / "out"
     out.mkdir()
-
-    def small_disk() -> None:
-        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-        resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))
-
-    r = subprocess.run(bladesonar_cmd("simulate", "--scene", str(SCENE), "--seconds", "10",
-                                      "--rate", "0.45", "--out", str(out / "x.wav"),
-                                      "--quiet"),
-                       capture_output=True, text=True, cwd=ROOT, env=_env(), timeout=120,
-                       preexec_fn=small_disk)
+    # the shell's ulimit -f (512-byte blocks), not preexec_fn (unsafe with threads); Python
+    # ignores SIGXFSZ, so the write fails with EFBIG instead of killing the process
+    r = subprocess.run(["/bin/sh", "-c", 'ulimit -f 400 && exec "$@"', "small-disk",
+                        *bladesonar_cmd("simulate", "--scene", str(SCENE), "--seconds", "10",
+                                        "--rate", "0.45", "--out", str(out / "x.wav"),
+                                        "--quiet")],
+                       capture_output=True, text=True, cwd=ROOT, env=_env(), timeout=120)
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr
     lines = r.stderr.strip().splitlines()
