@@ -304,3 +304,28 @@ def test_a_frozen_broker_neither_stops_the_daemon_nor_its_shutdown(tmp_path, ref
             broker.resume()
     assert rc == 0 and took < 10, (rc, took, log.read_text()[-2000:])
     assert "Traceback" not in log.read_text()
+
+
+def test_a_storm_of_sighups_never_deadlocks_the_daemon(tmp_path, reference_file):
+    """Signal handlers that take a lock (threading.Event.set) deadlock when the signal
+    lands while the main thread holds that lock (Event.clear, Event.wait): a burst of
+    SIGHUPs once froze the daemon for good, SIGTERM included. SIGHUPs as fast as they go
+    for 3 s, then SIGTERM: it must still publish and stop."""
+    cfg = _config(tmp_path)
+    (tmp_path / "state" / "reference.npz").write_bytes(reference_file.read_bytes())
+    d = Daemon(cfg, tmp_path / "daemon.log")
+    try:
+        d.wait_state(lambda s: s["status"] == "ok", 60)
+        t_end = time.monotonic() + 3.0
+        while time.monotonic() < t_end:
+            d.proc.send_signal(signal.SIGHUP)
+        n = len(d.states())
+        d.wait_state(lambda s: s["status"] == "ok", 20, after=n)
+        d.proc.send_signal(signal.SIGTERM)
+        rc = d.proc.wait(timeout=15)
+    finally:
+        if d.proc.poll() is None:
+            d.proc.kill()
+            d.proc.wait()
+    assert rc == 0, (tmp_path / "daemon.log").read_text()[-2000:]
+    assert "Traceback" not in (tmp_path / "daemon.log").read_text()

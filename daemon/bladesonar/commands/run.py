@@ -63,8 +63,12 @@ def run(args: argparse.Namespace) -> int:
     # the daemon. Remember it and reload once the service runs.
     import signal
 
-    early_hup: list[int] = []
-    signal.signal(signal.SIGHUP, lambda *_: early_hup.append(1))
+    early_hup = {"seen": False}     # a plain store: a handler must take no lock
+
+    def on_early_hup(*_) -> None:
+        early_hup["seen"] = True
+
+    signal.signal(signal.SIGHUP, on_early_hup)
 
     import logging
 
@@ -97,6 +101,6 @@ def run(args: argparse.Namespace) -> int:
                   reference_loader=load_reference_for, notifier=make_notifier(),
                   max_seconds=args.seconds)
     svc.install_signal_handlers()
-    if early_hup:
+    if early_hup["seen"]:
         svc.request_reload()
     return svc.run()

@@ -80,6 +80,9 @@ class Service:
         self._audio_closed: dict[str, int] = {}
         self._stop = threading.Event()
         self._reload = threading.Event()
+        #: set by the signal handlers (plain stores, no locks: see install_signal_handlers)
+        self._sig_stop = False
+        self._sig_reload = False
         self.publisher: Any = None
         self.audio: Any = None
         self.analyzer: Any = None
@@ -98,12 +101,37 @@ class Service:
     # -- signals -------------------------------------------------------------------------
 
     def install_signal_handlers(self) -> None:
-        signal.signal(signal.SIGTERM, lambda *_: self._stop.set())
-        signal.signal(signal.SIGINT, lambda *_: self._stop.set())
-        signal.signal(signal.SIGHUP, lambda *_: self._reload.set())
+        """Handlers that only store a flag the loop reads. They must take no lock: a
+        handler runs in the main thread between any two bytecodes, so one that calls
+        threading.Event.set() deadlocks if the signal lands while the loop holds that
+        Event's lock (clear, wait), and a long handler nests under a flood of signals
+        until RecursionError (both seen under a SIGHUP storm)."""
+
+        def on_stop(*_: Any) -> None:
+            self._sig_stop = True
+
+        def on_hup(*_: Any) -> None:
+            self._sig_reload = True
+
+        signal.signal(signal.SIGTERM, on_stop)
+        signal.signal(signal.SIGINT, on_stop)
+        signal.signal(signal.SIGHUP, on_hup)
 
     def request_stop(self) -> None:
         self._stop.set()
+
+    def _stopping(self) -> bool:
+        return self._sig_stop or self._stop.is_set()
+
+    def _pause(self, seconds: float) -> None:
+        """Wait ``seconds`` unless asked to stop (a signal only sets a flag, so the wait is
+        sliced to notice it within 0.1 s)."""
+        end = time.monotonic() + seconds
+        while not self._stopping():
+            left = end - time.monotonic()
+            if left <= 0:
+                return
+            self._stop.wait(min(left, 0.1))
 
     def request_reload(self) -> None:
         self._reload.set()
@@ -120,12 +148,13 @@ class Service:
         next_state = next_stats = t_start
         last_pulse_t = t_start
         try:
-            while not self._stop.is_set():
+            while not self._stopping():
                 now = self.clock()
                 if self.max_seconds is not None and now - t_start >= self.max_seconds:
                     log.info("ran for %.1f s as asked (--seconds); stopping", self.max_seconds)
                     break
-                if self._reload.is_set():
+                if self._sig_reload or self._reload.is_set():
+                    self._sig_reload = False     # signals until here join this reload
                     self._reload.clear()
                     self._do_reload()
                 if self.analyzer is not None and now >= self._next_reference_check:
@@ -134,7 +163,7 @@ class Service:
                         log.info("the reference file changed; reading it again")
                         self.analyzer = None
                 if self.analyzer is None and not self._load_reference():
-                    self._stop.wait(REFERENCE_POLL_S)
+                    self._pause(REFERENCE_POLL_S)
                     continue
                 if self.audio is None:
                     self._open_audio()
@@ -156,7 +185,7 @@ class Service:
                 except BladesonarError as exc:
                     # e.g. no direct-coupling pulse: speaker muted, wrong device, unplugged
                     self._signal_problem(str(exc))
-                    self._stop.wait(SIGNAL_RETRY_S)
+                    self._pause(SIGNAL_RETRY_S)
                     continue
                 self.counters.pulses_processed += 1
                 if estimate is None:  # not aligned yet (or re-acquiring after a gap)
