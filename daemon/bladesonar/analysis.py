@@ -591,17 +591,15 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
     status: list[np.ndarray] = []
     source = _blocks(x, block) if not streamed else iter(x)
     for xb in itertools.chain(source, [None]):
+        if xb is not None:
+            xb = np.asarray(xb, dtype=np.float64)
+            if streamed:
+                chk.update(xb)
         try:
-            if xb is None:
-                got = aligner.flush()
-            else:
-                xb = np.asarray(xb, dtype=np.float64)
-                if streamed:
-                    chk.update(xb)
-                got = aligner.push(xb)
+            got = aligner.flush() if xb is None else aligner.push(xb)
         except InputError:
-            if streamed and chk.silent:
-                chk.finish()               # the silent recording's own message
+            if streamed:
+                chk.explain()              # a silent or overloaded recording's own message
             raise
         if not len(got):
             continue

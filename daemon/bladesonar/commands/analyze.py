@@ -42,12 +42,13 @@ def run(args: argparse.Namespace) -> int:
     from .. import config
     from ..analysis import analyze
     from ..io.reference import load_reference
-    from ..io.wav import read_wav
+    from ..io.wav import stream_wav
 
     cfg = config.load(args.config)
     ref = load_reference(args.reference)
-    x, _ = read_wav(args.wav, expect_rate=cfg.audio.sample_rate)
-    summary, rows = analyze(x, cfg, ref, track=args.track)
+    # read in blocks: memory independent of the recording's length (rows aside)
+    with stream_wav(args.wav, expect_rate=cfg.audio.sample_rate) as blocks:
+        summary, rows = analyze(blocks, cfg, ref, track=args.track)
     if args.track:
         out = sys.stdout
         for row in rows:

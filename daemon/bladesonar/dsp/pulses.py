@@ -532,6 +532,12 @@ class RecordingCheck:
     def silent(self) -> bool:
         return self.peak < 1e-6
 
+    def explain(self) -> None:
+        """When the analysis of a stream fails part-way: raise the recording's own fault
+        if what was fed so far shows one (silent, overloaded), else return."""
+        if self.silent or (self.n and self.clipped / self.n > self.max_clip_fraction):
+            self.finish()
+
     def finish(self) -> list[str]:
         """The verdict on everything fed: raises for a silent, too short or overloaded
         recording; warnings for a doubtful one."""

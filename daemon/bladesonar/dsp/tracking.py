@@ -295,19 +295,16 @@ class Tracker:
 
     @property
     def rate(self) -> tuple[float, float]:
-        """The rate to report and its standard deviation (cycles per pulse): the track's
-        and the follower's, weighed by how well each predicted the recent matches (a
-        steady fan: the track's, which is quieter; a ramp: the follower's, which coasts
-        through the blind part of a blade period on the rate's change)."""
+        """The rate to report and its standard deviation (cycles per pulse): the
+        follower's while the recent matches favour it (weight above 1/2: the rate is
+        changing, and the follower coasts through the blind part of a blade period on the
+        rate's change), else the quieter constant-rate track's (a steady fan: a blend
+        made its rate wander by 1.6 % at the 95th percentile, the track's 0.7 %)."""
         if self.x is None:
             return float("nan"), float("nan")
-        w = self.follower_weight
-        if w <= 0.0:
-            return float(self.x[1]), math.sqrt(max(float(self.P[1, 1]), 0.0))
-        rate = w * float(self.fx[1]) + (1.0 - w) * float(self.x[1])
-        var = w * float(self.fP[1, 1]) + (1.0 - w) * float(self.P[1, 1]) + \
-            w * (1.0 - w) * (float(self.fx[1]) - float(self.x[1])) ** 2
-        return rate, math.sqrt(max(var, 0.0))
+        if self.follower_weight > 0.5:
+            return float(self.fx[1]), math.sqrt(max(float(self.fP[1, 1]), 0.0))
+        return float(self.x[1]), math.sqrt(max(float(self.P[1, 1]), 0.0))
 
     def _follow_from_track(self) -> None:
         """(Re)start the follower on the track's line, its acceleration unknown up to the

@@ -18,6 +18,7 @@ import logging
 import os
 import stat
 import struct
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Iterator
@@ -29,10 +30,10 @@ from .files import human_bytes, temp_prefix
 
 log = logging.getLogger(__name__)
 
-#: Longest recording :func:`read_wav` returns by default, samples: 6 Mi samples (2 min
-#: 22 s at 44.1 kHz, 48 MiB as float64), which ``analyze`` holds in under 200 MiB peak
-#: RSS (measured; the analysis keeps a few copies). Longer recordings are refused from the
-#: header, before anything is read.
+#: Longest recording :func:`read_wav` returns whole by default, samples: 6 Mi samples
+#: (2 min 22 s at 44.1 kHz, 48 MiB as float64), held in under 200 MiB peak RSS by the
+#: commands that need it whole (plots; measured). Longer ones are refused from the header,
+#: before anything is read. ``analyze`` streams (:func:`stream_wav`) and has no limit.
 MAX_SAMPLES = 6 << 20
 #: What ``reference`` reads: the first 1 Mi samples (23.8 s at 44.1 kHz; a reference
 #: needs 20 s). Building a reference costs about 5 MiB per second of audio, so longer
@@ -214,21 +215,37 @@ class WavReader:
         self.close()
 
 
+def _check_usable(p: Path, info: WavInfo, expect_rate: int | None) -> None:
+    """Refuse, from the header, what the analysis cannot use."""
+    if info.channels != 1:
+        raise InputError(f"{p}: has {info.channels} channels; bladesonar needs mono. "
+                         f"Take one channel, e.g. 'sox {p.name} -c 1 mono.wav remix 1'")
+    if expect_rate is not None and info.rate != expect_rate:
+        raise InputError(f"{p}: sample rate is {info.rate} Hz but the config says "
+                         f"audio.sample_rate = {expect_rate}; set audio.sample_rate: "
+                         f"{info.rate} in the config (and a matching "
+                         "waveform.pri_samples) or resample the recording")
+
+
+@contextmanager
+def stream_wav(path: str | Path, *, expect_rate: int | None = None
+               ) -> Iterator[Iterator[np.ndarray]]:
+    """A mono recording as float64 blocks in [-1, 1], checked from the header first:
+    memory is one block whatever the recording's length (``analyze`` takes the blocks)."""
+    with WavReader(path) as r:
+        _check_usable(r.path, r.info, expect_rate)
+        yield r.blocks()
+
+
 def read_wav(path: str | Path, *, expect_rate: int | None = None,
              max_samples: int = MAX_SAMPLES, cut: bool = False) -> tuple[np.ndarray, int]:
     """Samples as float64 in [-1, 1] and the sample rate; refuses what analysis cannot use
     (from the header, before reading the samples). A recording longer than
-    ``max_samples`` is refused, or with ``cut`` read only that far (a warning says so)."""
+    ``max_samples`` is refused, or with ``cut`` read only that far (a warning says so).
+    ``analyze`` streams instead (:func:`stream_wav`)."""
     with WavReader(path) as r:
         p, info = r.path, r.info
-        if info.channels != 1:
-            raise InputError(f"{p}: has {info.channels} channels; bladesonar needs mono. "
-                             f"Take one channel, e.g. 'sox {p.name} -c 1 mono.wav remix 1'")
-        if expect_rate is not None and info.rate != expect_rate:
-            raise InputError(f"{p}: sample rate is {info.rate} Hz but the config says "
-                             f"audio.sample_rate = {expect_rate}; set audio.sample_rate: "
-                             f"{info.rate} in the config (and a matching "
-                             "waveform.pri_samples) or resample the recording")
+        _check_usable(p, info, expect_rate)
         frames = info.frames
         if frames > max_samples and cut:
             log.warning("%s: %.0f s long; using its first %.1f s", p, info.seconds,
