@@ -12,6 +12,8 @@ import pytest
 from bladesonar import cli
 from synth_pulses import pulse_train
 
+pytestmark = pytest.mark.slow   # whole analyses of the 3-D sample and WAV files
+
 SAMPLE = "fan-3d-sample"
 
 

@@ -15,6 +15,8 @@ from bladesonar.errors import InputError
 from bladesonar.sim import load_scene
 from bladesonar.sim.render import simulate
 
+pytestmark = pytest.mark.slow   # whole analyses of simulated scenes: outside the fast tier
+
 SCENE = "config/scenes/paper-room.yaml"
 
 

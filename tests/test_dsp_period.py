@@ -10,6 +10,8 @@ from bladesonar.dsp.period import estimate_period
 from bladesonar.errors import EstimationError
 from synth_pulses import fan_pulse
 
+pytestmark = pytest.mark.slow   # period estimation on simulated recordings: outside the fast tier
+
 L = 1000
 
 

@@ -43,6 +43,7 @@ def test_wrap_aware_innovation_across_zero():
     assert wrap(0.75) == pytest.approx(-0.25) and wrap(-0.6) == pytest.approx(0.4)
 
 
+@pytest.mark.slow
 def test_stiff_case_keeps_covariance_symmetric_positive_definite():
     """Process noise 1e-12, measurement noise 1e6, a million steps (Joseph form)."""
     x, P = np.array([0.1, 0.01]), np.diag([1.0, 1e-2])

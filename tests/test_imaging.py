@@ -105,6 +105,7 @@ def test_isar_multipath_does_not_hide_the_blades(scene):
     assert np.all(_circ(ang, np.arange(4) * math.pi / 2) < math.radians(3))
 
 
+@pytest.mark.slow
 def test_isar_direct_path_cannot_tell_cw_from_ccw(scene):
     """The paper's point: with the direct path alone, a CW and a CCW run (same start offset
     and noise seed, so direction is the only difference) give the same image up to a

@@ -12,6 +12,8 @@ from bladesonar.live import LiveAnalyzer
 
 from conftest import require_shared_sample
 
+pytestmark = pytest.mark.slow   # whole recordings, daemon path against offline
+
 
 @pytest.fixture(scope="module")
 def sample():

@@ -11,6 +11,8 @@ from __future__ import annotations
 import threading
 import time
 
+import pytest
+
 from bladesonar import config
 from bladesonar.analysis import build_reference
 from bladesonar.live import LiveAnalyzer
@@ -20,6 +22,8 @@ from bladesonar.service.runner import Service
 from bladesonar.sim import load_scene
 from bladesonar.sim.render import simulate
 from loopback import SCENE, write_config
+
+pytestmark = pytest.mark.slow   # runs the service: outside the fast tier
 
 
 class Collector:

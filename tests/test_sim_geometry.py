@@ -73,6 +73,7 @@ def test_one_bounce_length_is_distance_via_the_mirror_images():
         assert g[0] == pytest.approx(0.5 * 1.0 / (leg1 * leg2), rel=1e-12)
 
 
+@pytest.mark.slow
 def test_one_bounce_paths_obey_fermat():
     """Where a wall_blade path exists its length is the shortest image->blade->sensor route
     (found by brute force along the blade), and it exists exactly where that minimum is
@@ -212,6 +213,7 @@ def series(s, start, sign, wall_bounces, n=120):
     return np.array([fan_profile(s, start + sign * i * step, wall_bounces) for i in range(n)])
 
 
+@pytest.mark.slow
 def test_cw_and_ccw_are_mirror_images_without_wall_bounces_but_differ_with_them():
     from bladesonar.sim import load_scene
     from pathlib import Path

@@ -213,6 +213,7 @@ def test_bad_arguments_name_the_key(room):
     assert e.value.key == "seconds"
 
 
+@pytest.mark.slow
 def test_ten_minutes_stream_in_bounded_memory(room):
     sim = Simulator(room, CFG, "ccw:0.5:100,cw:1:100", snr_db=20, seed=1, include_paths=False)
     seconds = 600.0

@@ -21,6 +21,8 @@ from bladesonar.sim.schedule import parse
 from bladesonar.sim.score import TruthEvent, score_events, score_state, truth_events
 from bladesonar.transitions import Transitions, TransitionSettings
 
+pytestmark = pytest.mark.slow   # simulated scenes with transitions: outside the fast tier
+
 SCENE = "config/scenes/paper-room.yaml"
 
 
