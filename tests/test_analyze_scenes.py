@@ -12,7 +12,7 @@ import pytest
 from bladesonar import config
 from bladesonar.analysis import analyze, build_reference
 from bladesonar.errors import InputError
-from bladesonar.sim import load_scene
+from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 
 pytestmark = pytest.mark.slow   # whole analyses of simulated scenes: outside the fast tier

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from bladesonar import config
-from bladesonar.service.audio import (BlockDecoder, CaptureRing, RawPeriod, decode, encode,
-                                      open_audio)
+from bladesonar.service.audio import BlockDecoder, CaptureRing, RawPeriod, decode, encode
+from bladesonar.service.backends import open_audio
 from bladesonar.errors import AudioDeviceError, ConfigError
 
 from conftest import ROOT
@@ -124,7 +124,7 @@ def test_sim_backend_keeps_the_simulators_snr_definition():
     """The noise the sim backend adds gives the configured SNR as the offline simulator
     defines it (fan-echo power inside the gate over noise power)."""
     from bladesonar.service.sim_audio import SimAudio
-    from bladesonar.sim import load_scene
+    from bladesonar.io.scene_file import load_scene
     from bladesonar.sim.render import simulate
 
     def periods(snr_db):

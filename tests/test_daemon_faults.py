@@ -17,7 +17,7 @@ import pytest
 from bladesonar import config
 from bladesonar.analysis import build_reference
 from bladesonar.io.reference import save_reference
-from bladesonar.sim import load_scene
+from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import Schedule
 

@@ -29,7 +29,7 @@ from bladesonar.errors import BladesonarError, ConfigError, InputError, Referenc
 from bladesonar.io.reference import checksum, parse_reference, reference_bytes
 from bladesonar.io.safe_yaml import parse_yaml
 from bladesonar.io.wav import read_wav
-from bladesonar.sim import load_scene
+from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 from bladesonar.sim.scene import Scene
 from bladesonar.sim.schedule import Schedule

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bladesonar import config, imaging
-from bladesonar.sim import load_scene
+from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 
 

@@ -78,7 +78,7 @@ def test_daemon_and_analyze_send_the_same_events_on_simulated_use(repo_root):
     LiveAnalyzer one capture period at a time and to analyze --track in one go, gives the
     same events at the same pulses, the same final state, and the events the simulator's
     truth asks for. Runs everywhere (no external sample)."""
-    from bladesonar.sim import load_scene
+    from bladesonar.io.scene_file import load_scene
     from bladesonar.sim.render import simulate
     from bladesonar.sim.schedule import parse
     from bladesonar.sim.score import score_events, truth_events

@@ -14,7 +14,7 @@ from bladesonar.runtime_report import (TRANSITION_TARGETS_S, TRANSITIONS_SCHEDUL
                                        Grid, Job, _render, aggregate, aggregate_transitions,
                                        envelope, jobs, score_transitions, sweep_config,
                                        transitions_schedule)
-from bladesonar.sim import load_scene
+from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 
 pytestmark = pytest.mark.slow   # a sweep of simulated trials: outside the fast tier

@@ -16,10 +16,10 @@ import pytest
 from bladesonar import config
 from bladesonar.analysis import build_reference
 from bladesonar.live import LiveAnalyzer
-from bladesonar.service.audio import open_audio
+from bladesonar.service.backends import open_audio
 from bladesonar.service.notify import NullNotifier
 from bladesonar.service.runner import Service
-from bladesonar.sim import load_scene
+from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 from loopback import SCENE, write_config
 

@@ -215,7 +215,7 @@ def series(s, start, sign, wall_bounces, n=120):
 
 @pytest.mark.slow
 def test_cw_and_ccw_are_mirror_images_without_wall_bounces_but_differ_with_them():
-    from bladesonar.sim import load_scene
+    from bladesonar.io.scene_file import load_scene
     from pathlib import Path
 
     s = load_scene(Path(__file__).resolve().parents[1] / "config/scenes/paper-room.yaml")

@@ -13,7 +13,8 @@ import pytest
 
 from bladesonar import config
 from bladesonar.errors import ConfigError
-from bladesonar.sim import Scene, load_scene
+from bladesonar.io.scene_file import load_scene
+from bladesonar.sim import Scene
 from bladesonar.sim.render import Simulator, echo_response, simulate
 
 from test_waveform import band_limited_peak

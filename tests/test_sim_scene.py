@@ -10,7 +10,8 @@ import pytest
 
 from bladesonar import config
 from bladesonar.errors import ConfigError
-from bladesonar.sim import Scene, load_scene
+from bladesonar.io.scene_file import load_scene
+from bladesonar.sim import Scene
 from bladesonar.sim.schedule import Schedule, direction_of, parse
 
 ROOT = Path(__file__).resolve().parents[1]

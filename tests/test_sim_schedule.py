@@ -13,7 +13,7 @@ from scipy import integrate
 
 from bladesonar import config, imaging
 from bladesonar.errors import ConfigError
-from bladesonar.sim import load_scene
+from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import Schedule, Segment, Wobble, direction_of, parse
 

@@ -15,7 +15,7 @@ import pytest
 from bladesonar import config
 from bladesonar.analysis import analyze, build_reference
 from bladesonar.dsp.decide import Decision
-from bladesonar.sim import load_scene
+from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import parse
 from bladesonar.sim.score import TruthEvent, score_events, score_state, truth_events

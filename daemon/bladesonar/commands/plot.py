@@ -191,7 +191,7 @@ def _isar(args):
     x, _ = read_wav(args.wav, expect_rate=cfg.audio.sample_rate)
     scene = None
     if args.scene:
-        from ..sim import load_scene
+        from ..io.scene_file import load_scene
 
         scene = load_scene(args.scene).with_config(cfg)
     sensor = args.sensor or (scene.sensor if scene else None)
@@ -295,7 +295,7 @@ def _track(args):
 def _sim(args):
     from .. import imaging
     from ..plots import sim
-    from ..sim import load_scene
+    from ..io.scene_file import load_scene
 
     cfg = _cfg(args)
     scene = load_scene(args.scene).with_config(cfg)

@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
                                   aggregate_transitions, default_grid, envelope, jobs,
                                   limit_notes, refusal_notes)
     from ..report_text import markdown
-    from ..sim import load_scene
+    from ..io.scene_file import load_scene
 
     if args.jobs < 1:
         raise ConfigError("--jobs", args.jobs, "must be at least 1")

@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
 
     from .. import config
     from ..loopback import CAP_PCM, PLAY_PCM, Room, write_alsa_config
-    from ..sim import load_scene
+    from ..io.scene_file import load_scene
 
     cfg = config.load(args.config)
     scene = load_scene(args.scene or cfg.path(cfg.sim.scene))

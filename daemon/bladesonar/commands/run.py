@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from .. import config
     from ..errors import ConfigError, InputError
     from ..live import LiveAnalyzer
-    from ..service.audio import open_audio
+    from ..service.backends import open_audio
     from ..service.logs import setup_logging
     from ..service.notify import make_notifier
     from ..service.publish import make_publisher

@@ -143,7 +143,7 @@ def _run(args: argparse.Namespace) -> int:
     from ..io.truth import TruthWriter, truth_path
     from ..io.wav import WavWriter
     from ..progress import Progress
-    from ..sim import load_scene
+    from ..io.scene_file import load_scene
     from ..sim.render import Simulator
     from ..sim.schedule import Schedule
 

@@ -14,11 +14,10 @@ import collections
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, NamedTuple, Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
-from ..errors import AudioDeviceError
 
 #: Bytes per sample and full scale of each supported ALSA sample format.
 FORMATS = {"S16_LE": (np.dtype("<i2"), 32768.0), "S32_LE": (np.dtype("<i4"), 2147483648.0)}
@@ -54,17 +53,6 @@ class AudioIO(Protocol):
         ...
 
     def stop(self, timeout: float = 2.0) -> None: ...
-
-
-def open_audio(cfg: Any) -> AudioIO:
-    """The audio path ``cfg.audio.backend`` names (not started)."""
-    if cfg.audio.backend == "sim":
-        from .sim_audio import SimAudio
-        return SimAudio(cfg)
-    if cfg.audio.backend == "alsa":
-        from .alsa_audio import AlsaAudio
-        return AlsaAudio(cfg)
-    raise AudioDeviceError(f"audio.backend {cfg.audio.backend!r}: use alsa or sim")
 
 
 # -- sample formats (pure) -------------------------------------------------------------

@@ -19,7 +19,7 @@ log = logging.getLogger(__name__)
 
 def record(cfg: Config, seconds: float, *, timeout_s: float = 5.0) -> np.ndarray:
     """``seconds`` of capture as float64, from the same audio path ``bladesonar run`` uses."""
-    from .audio import open_audio
+    from .backends import open_audio
 
     pri = cfg.waveform.pri_samples
     n_blocks = int(np.ceil(seconds * cfg.audio.sample_rate / pri))

@@ -47,7 +47,7 @@ class SimAudio:
         self.ring_overflows = 0
 
     def start(self) -> None:
-        from ..sim import load_scene
+        from ..io.scene_file import load_scene
         from ..sim.render import Simulator
 
         c = self.cfg

@@ -2,12 +2,12 @@
 rendered as the pulsed-sonar recording the daemon would capture, with exact truth.
 
 ``scene`` (geometry and validation), ``geometry`` (ray paths), ``schedule`` (rate vs time)
-and ``render`` (streaming audio) are pure; ``load_scene`` is the one file edge.
+and ``render`` (streaming audio) are pure; scene files are read at the edge,
+:func:`bladesonar.io.scene_file.load_scene`.
 """
 
 from __future__ import annotations
 
-from ..io.scene_file import load_scene
 from .scene import Scene
 
-__all__ = ["Scene", "load_scene"]
+__all__ = ["Scene"]
