@@ -56,9 +56,9 @@ def _wait(pred, timeout=60.0):
         time.sleep(0.02)
 
 
-def test_audio_counters_accumulate_across_a_reopen(tmp_path):
-    sections = {"audio": {"backend": "sim"}, "mqtt": {"publish_interval_s": 0.1},
-                "sim": {"schedule": "ccw:0.45:60", "realtime": False}}
+def _start_service(tmp_path, sections):
+    """The service on the sim backend in a thread, with a collecting publisher and a
+    reference from 12 s of the same scene: (service, config path, publishers, thread)."""
     cfg_path = write_config(tmp_path / "cfg.yaml", tmp_path, **sections)
     cfg = config.load(cfg_path)
     x, _ = simulate(load_scene(SCENE), cfg, 12.0, schedule="ccw:0.45:12", seed=2,
@@ -76,6 +76,13 @@ def test_audio_counters_accumulate_across_a_reopen(tmp_path):
                   reference_loader=lambda c: ref, notifier=NullNotifier())
     th = threading.Thread(target=svc.run, daemon=True)
     th.start()
+    return svc, cfg_path, pubs, th
+
+
+def test_audio_counters_accumulate_across_a_reopen(tmp_path):
+    sections = {"audio": {"backend": "sim"}, "mqtt": {"publish_interval_s": 0.1},
+                "sim": {"schedule": "ccw:0.45:60", "realtime": False}}
+    svc, cfg_path, pubs, th = _start_service(tmp_path, sections)
     _wait(lambda: svc.counters.pulses_processed >= 300)
     # an audio setting changes: the reload closes the sim device and opens a new one
     write_config(cfg_path, tmp_path, **{**sections, "audio": {"backend": "sim",
@@ -100,23 +107,7 @@ def test_reloads_that_change_nothing_the_analysis_uses_keep_tracking(tmp_path):
     key changed restarts it."""
     sections = {"audio": {"backend": "sim"}, "mqtt": {"publish_interval_s": 0.1},
                 "sim": {"schedule": "ccw:0.45:120", "realtime": False}}
-    cfg_path = write_config(tmp_path / "cfg.yaml", tmp_path, **sections)
-    cfg = config.load(cfg_path)
-    x, _ = simulate(load_scene(SCENE), cfg, 12.0, schedule="ccw:0.45:12", seed=2,
-                    snr_db=20.0)
-    ref = build_reference(x, cfg, "ccw")
-    pubs: list[Collector] = []
-
-    def publisher(c):
-        pubs.append(Collector(c))
-        return pubs[-1]
-
-    svc = Service(cfg, config_path=str(cfg_path), audio_factory=open_audio,
-                  publisher_factory=publisher,
-                  analyzer_factory=lambda c, r: LiveAnalyzer(c, r, reference_id="t"),
-                  reference_loader=lambda c: ref, notifier=NullNotifier())
-    th = threading.Thread(target=svc.run, daemon=True)
-    th.start()
+    svc, cfg_path, pubs, th = _start_service(tmp_path, sections)
     try:
         _wait(lambda: any(s.get("status") == "ok" for s in pubs[-1].states))
         running = svc.analyzer

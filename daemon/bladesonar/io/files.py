@@ -132,6 +132,42 @@ def atomic_writer(path: str | Path) -> Iterator[BinaryIO]:
             os.close(dfd)
 
 
+class AtomicFile:
+    """A file written piece by piece that appears at ``path`` only on :meth:`commit`:
+    it is written to ``.NAME.XXXX.tmp`` in the same folder, then flushed, fsynced and
+    renamed over ``path``; :meth:`abort` (or a failed commit) removes the temporary file
+    and leaves ``path`` as it was. For writers that stream (WAV, truth sidecar);
+    :func:`atomic_writer` is the one-block form."""
+
+    def __init__(self, path: str | Path, mode: str = "wb") -> None:
+        self.path = Path(path)
+        folder = self.path.parent if str(self.path.parent) else Path(".")
+        fd, self._tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp",
+                                         dir=folder)
+        self.file = os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"}))
+        self.done = False
+
+    def commit(self) -> None:
+        if self.done:
+            return
+        try:
+            self.file.flush()
+            os.fsync(self.file.fileno())
+            self.file.close()
+            os.replace(self._tmp, self.path)
+        except BaseException:
+            self.abort()
+            raise
+        self.done = True
+
+    def abort(self) -> None:
+        self.done = True
+        with contextlib.suppress(OSError):
+            self.file.close()
+        with contextlib.suppress(OSError):
+            os.unlink(self._tmp)
+
+
 def remove_stale_temps(path: str | Path, older_than_s: float = 0.0) -> list[Path]:
     """Delete hidden ``.NAME.*.tmp`` files an atomic write of ``path`` left behind (a
     kill -9 or power loss mid-write); returns what was removed. Only files matching that

@@ -9,7 +9,6 @@ at the end, e.g. clipped sample counts.
 from __future__ import annotations
 
 import json
-import os
 import math
 from pathlib import Path
 from typing import Any, Iterable
@@ -41,17 +40,12 @@ class TruthWriter:
     """
 
     def __init__(self, path: str | Path, meta: dict[str, Any]) -> None:
-        import tempfile
-
-        from .files import temp_prefix
+        from .files import AtomicFile
 
         self.path = Path(path)
-        folder = self.path.parent if str(self.path.parent) else Path(".")
-        fd, self._tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp",
-                                         dir=folder)
-        self._f = os.fdopen(fd, "w", encoding="utf-8")
+        self._out = AtomicFile(self.path, "w")
+        self._f = self._out.file
         self._n = 0
-        self._closed = False
         try:
             self._f.write('{"meta": ' + json.dumps(_clean(meta), allow_nan=False)
                           + ',\n"pulses": [')
@@ -66,31 +60,19 @@ class TruthWriter:
             self._n += 1
 
     def close(self, summary: dict[str, Any] | None = None) -> None:
-        if self._closed:
+        if self._out.done:
             return
         try:
             self._f.write("\n],\n\"summary\": "
                           + json.dumps(_clean(summary or {}), allow_nan=False) + "}\n")
-            self._f.flush()
-            os.fsync(self._f.fileno())
-            self._f.close()
-            os.replace(self._tmp, self.path)
         except BaseException:
             self.abort()
             raise
-        self._closed = True
+        self._out.commit()
 
     def abort(self) -> None:
         """Drop the temporary file; ``path`` is left as it was."""
-        self._closed = True
-        try:
-            self._f.close()
-        except OSError:
-            pass
-        try:
-            os.unlink(self._tmp)
-        except OSError:
-            pass
+        self._out.abort()
 
     @property
     def pulses_written(self) -> int:

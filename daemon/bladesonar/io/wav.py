@@ -26,7 +26,7 @@ from typing import BinaryIO, Iterator
 import numpy as np
 
 from ..errors import InputError
-from .files import human_bytes, temp_prefix
+from .files import AtomicFile, human_bytes
 
 log = logging.getLogger(__name__)
 
@@ -275,14 +275,10 @@ class WavWriter:
     """
 
     def __init__(self, path: str | Path, rate: int) -> None:
-        import tempfile
-
         self.path = Path(path)
         self.rate = int(rate)
-        folder = self.path.parent if str(self.path.parent) else Path(".")
-        fd, self._tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp",
-                                         dir=folder)
-        self._file = os.fdopen(fd, "wb")
+        self._out = AtomicFile(self.path)
+        self._file = self._out.file
         self.frames = 0
         self.clipped = 0
         try:
@@ -307,29 +303,19 @@ class WavWriter:
 
     def close(self) -> None:
         """Fill in the header sizes, fsync and rename into place."""
-        if self._file.closed:
+        if self._out.done:
             return
         try:
             self._file.seek(0)
             self._file.write(self._header(self.frames))
-            self._file.flush()
-            os.fsync(self._file.fileno())
-            self._file.close()
-            os.replace(self._tmp, self.path)
         except BaseException:
             self.abort()
             raise
+        self._out.commit()
 
     def abort(self) -> None:
         """Drop the temporary file; ``path`` is left as it was."""
-        try:
-            self._file.close()
-        except OSError:
-            pass
-        try:
-            os.unlink(self._tmp)
-        except OSError:
-            pass
+        self._out.abort()
 
     def __enter__(self) -> "WavWriter":
         return self
