@@ -5,4 +5,4 @@ Pure computation lives in the top-level modules (waveform, sim, dsp); devices, M
 files and systemd live at the edges (io, service) and are thin.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0.dev0"
