@@ -15,6 +15,13 @@ Initialisation finds the rate sign robustly by circular regression: over candida
 w within the slew bound, the coherence ``|sum_k q_k exp(2 pi i (z_k - w k))| / sum q_k`` of
 the first matches is largest at the true rate; random matches give a low coherence and
 the filter stays unlocked (no answer) instead of guessing.
+
+Beside the track a *rate follower* (three states: phase, rate, rate change) takes the
+matches the track accepts; the reported rate is the follower's while the recent matches
+favour its model (a likelihood ratio with forgetting), so ramps are followed through the
+blind part of a blade period without the constant-rate model's lag. A track that the
+recent good matches mostly reject is re-checked against the best line of those matches
+(:meth:`Tracker.recheck`).
 """
 
 from __future__ import annotations
