@@ -119,8 +119,8 @@ class TrackingSettings:
                             "slow down", lo=0.0, hi=0.5)
     max_ramp_hz_s: float = opt(0.15, "steepest speed ramp followed without lag: a second "
                                "filter carrying the rate's change runs beside the "
-                               "constant-rate track and gives the published rate (a fan "
-                               "spinning up or down); 0: the constant-rate track alone",
+                               "constant-rate track and gives the published rate while the "
+                               "speed is changing; 0: the constant-rate track alone",
                                lo=0.0, hi=100.0, unit="Hz/s")
     meas_sigma: float = opt(0.02, "phase noise of a perfect match, in blade periods; scaled "
                             "by 1/match quality", lo=1e-6, hi=0.5)
