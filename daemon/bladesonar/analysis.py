@@ -353,9 +353,10 @@ class PulseAnalyzer:
             min_rate=self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit)
 
     def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict]:
-        """Match, track, measure motion and decide for a block of pulses, pulse by pulse
-        (the state machine sees every pulse, offline as in the daemon); optional
-        per-pulse rows. Events confirmed in the block are added to ``new_events``."""
+        """Match and track every pulse of a block; measure motion and decide every
+        ``tracking.decide_every`` valid pulses (on the same pulses offline as in the
+        daemon, whatever the blocks); optional per-pulse rows carrying the last state.
+        Events confirmed in the block are added to ``new_events``."""
         a = self.cfg.analysis
         v = block.valid
         self.seen += len(block)
