@@ -14,7 +14,7 @@ import stat
 import tempfile
 import time
 from pathlib import Path
-from typing import BinaryIO, Iterator
+from typing import BinaryIO, Callable, Iterator
 
 #: Longest repr of a user value inside an error message, characters.
 MAX_REPR = 80
@@ -147,10 +147,14 @@ class AtomicFile:
         self.file = os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"}))
         self.done = False
 
-    def commit(self) -> None:
+    def commit(self, last: Callable[[], object] | None = None) -> None:
+        """Write ``last()`` (a trailer, a header's final sizes), then put the file in
+        place; on any error remove it instead."""
         if self.done:
             return
         try:
+            if last is not None:
+                last()
             self.file.flush()
             os.fsync(self.file.fileno())
             self.file.close()

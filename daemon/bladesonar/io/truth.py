@@ -60,15 +60,10 @@ class TruthWriter:
             self._n += 1
 
     def close(self, summary: dict[str, Any] | None = None) -> None:
-        if self._out.done:
-            return
-        try:
+        def trailer() -> None:
             self._f.write("\n],\n\"summary\": "
                           + json.dumps(_clean(summary or {}), allow_nan=False) + "}\n")
-        except BaseException:
-            self.abort()
-            raise
-        self._out.commit()
+        self._out.commit(trailer)
 
     def abort(self) -> None:
         """Drop the temporary file; ``path`` is left as it was."""

@@ -303,15 +303,10 @@ class WavWriter:
 
     def close(self) -> None:
         """Fill in the header sizes, fsync and rename into place."""
-        if self._out.done:
-            return
-        try:
+        def header() -> None:
             self._file.seek(0)
             self._file.write(self._header(self.frames))
-        except BaseException:
-            self.abort()
-            raise
-        self._out.commit()
+        self._out.commit(header)
 
     def abort(self) -> None:
         """Drop the temporary file; ``path`` is left as it was."""
