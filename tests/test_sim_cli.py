@@ -85,3 +85,17 @@ def test_help_documents_every_option():
                 "--dropouts", "--dropout-samples", "--dropout-mode", "--dc-offset", "--clip",
                 "--no-wall-bounces", "--no-paths", "--quiet"):
         assert opt in r.stdout
+
+
+def test_a_live_reference_longer_than_a_reference_uses_is_refused(repo_root, tmp_path):
+    """A reference uses at most 2^20 samples (23.8 s at 44.1 kHz), as from a file: asking
+    --live for an hour once recorded it all into memory. Refused before recording."""
+    from loopback import bladesonar_cmd
+    r = subprocess.run(bladesonar_cmd("reference", "--live", "--seconds", "3600",
+                                      "--direction", "ccw", "--config",
+                                      str(repo_root / "config" / "demo.yaml"),
+                                      "--out", str(tmp_path / "r.npz")),
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2, r.stderr
+    assert "between 0.5 and 23.8 s" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "r.npz").exists()

@@ -40,8 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--live", action="store_true", help="record through the configured audio "
                    "device (or the sim backend) instead of reading a WAV file")
     p.add_argument("--seconds", type=float, default=20.0, metavar="S", help="with --live: how "
-                   "long to record, seconds (default 20; at least analysis.min_periods blade "
-                   "periods must fit)")
+                   "long to record, seconds (default 20, at most 2^20 samples: 23.8 s at 44.1 kHz; "
+                   "at least analysis.min_periods blade periods must fit)")
     p.add_argument("--save-wav", metavar="WAV", help="with --live: also keep the recording")
     p.add_argument("wav", metavar="IN.wav", nargs="?", help="mono WAV recording (not with --live)")
     p.set_defaults(func=run)
@@ -59,9 +59,14 @@ def run(args: argparse.Namespace) -> int:
     if args.live:
         if args.wav:
             raise InputError(f"give either --live or a recording ({args.wav}), not both")
-        if not 0.5 <= args.seconds <= 3600:
-            raise InputError(f"--seconds {args.seconds:g}: record between 0.5 and 3600 s "
-                             "(20 s is plenty for a fan above 0.2 Hz)")
+        from ..io.wav import REFERENCE_SAMPLES
+
+        # a reference uses at most what a recording file would give it (memory: building
+        # one costs about 5 MiB per second of audio)
+        longest = REFERENCE_SAMPLES / cfg.audio.sample_rate
+        if not 0.5 <= args.seconds <= longest:
+            raise InputError(f"--seconds {args.seconds:g}: record between 0.5 and "
+                             f"{longest:.1f} s (20 s is plenty for a fan above 0.2 Hz)")
         from ..service.recorder import record
 
         x = record(cfg, args.seconds)
