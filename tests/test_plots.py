@@ -104,6 +104,16 @@ def test_bad_suffix_and_missing_inputs_are_one_line_errors(recs, tmp_path, capsy
     bad.write_text("{not json\n")
     assert main(["plot", "track", "--out", str(tmp_path / "t.png"), str(bad)]) == 2
     assert "analyze --track" in capsys.readouterr().err
+    # bounded inputs: a 1 MB row, and /dev/zero as the truth file, are refused in one line
+    huge = tmp_path / "huge.jsonl"
+    huge.write_text("{" + " " * 1_000_000 + "}\n")
+    assert main(["plot", "track", "--out", str(tmp_path / "t.png"), str(huge)]) == 2
+    err = capsys.readouterr().err
+    assert "characters" in err and err.count("\n") == 1
+    assert main(["plot", "track", "--truth", "/dev/zero", "--out", str(tmp_path / "t.png"),
+                 str(_rows(recs, capsys))]) == 2
+    err = capsys.readouterr().err
+    assert "not a simulator truth file" in err and err.count("\n") == 1
 
 
 def test_missing_matplotlib_names_the_extra(repo_root, tmp_path, monkeypatch, capsys):

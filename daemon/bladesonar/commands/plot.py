@@ -9,6 +9,10 @@ from __future__ import annotations
 import argparse
 import math
 
+#: Most rows and longest row `plot track` reads (memory bounded).
+MAX_ROWS = 500_000
+MAX_ROW_CHARS = 16_384
+
 EPILOG = """\
 kinds:
   rd      range-doppler map (dB): doppler in Hz against one-way range, the analysis gate marked
@@ -272,6 +276,11 @@ def _track(args):
     rows = []
     with f:
         for n, line in enumerate(f, 1):
+            # bounded: an hour of pulses is 122 400 rows of a few hundred characters
+            if n > MAX_ROWS or len(line) > MAX_ROW_CHARS:
+                raise InputError(f"{args.rows}:{n}: more than {MAX_ROWS} rows or a row over "
+                                 f"{MAX_ROW_CHARS} characters; cut it, e.g. 'head -n "
+                                 f"{MAX_ROWS} {args.rows} > part.jsonl'")
             if line.strip():
                 try:
                     rows.append(json.loads(line))

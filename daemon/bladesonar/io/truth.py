@@ -83,7 +83,17 @@ class TruthWriter:
             self.abort()
 
 
+#: Largest truth file read whole, bytes (an hour of pulses is about 20 MB).
+MAX_TRUTH_BYTES = 64 << 20
+
+
 def read_truth(path: str | Path) -> dict[str, Any]:
-    """The whole truth file (for tests and short runs)."""
-    with open(path, encoding="utf-8") as f:
-        return json.load(f)
+    """The whole truth file (for tests, plots and short runs), at most
+    :data:`MAX_TRUTH_BYTES`; raises OSError, ValueError (too large, not JSON)."""
+    from .files import NotAFile, TooLarge, read_capped
+
+    try:
+        data = read_capped(path, MAX_TRUTH_BYTES)
+    except (TooLarge, NotAFile) as exc:
+        raise ValueError(str(exc)) from None
+    return json.loads(data.decode("utf-8"))
