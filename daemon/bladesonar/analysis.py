@@ -309,7 +309,7 @@ class PulseAnalyzer:
     tracker: Tracker = field(init=False)
     motion: MotionMeter = field(init=False)
     window: int = field(init=False)
-    _recent: list = field(default_factory=list)  # (pulse, accepted, quality) of recent pulses
+    _recent: list = field(default_factory=list)  # (accepted, quality) of recent pulses
     _prev: np.ndarray | None = None               # last raw pulse (for the noise level)
     _noise: float = float("nan")                  # running raw half lag-1 difference energy
     dropped: int = 0
@@ -328,6 +328,7 @@ class PulseAnalyzer:
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
         self.transitions = Transitions(transition_settings(self.cfg), self.cfg.prf_hz)
+        self._decide_settings = decide_settings(self.cfg)
         self.window = max(int(round(self.cfg.daemon.window_s * self.cfg.prf_hz)), 20)
         # lags up to the blade period at the slowest rate followed (reference rate / slew
         # limit): at some lag within it a moving pattern recurs
@@ -388,7 +389,7 @@ class PulseAnalyzer:
                 self._noise = e if not math.isfinite(self._noise) else (
                     self._noise + (e - self._noise) / self.window)
             self._prev = xv[i]
-            self._recent.append((int(k), not st.outlier and st.locked, float(m.quality[i])))
+            self._recent.append((not st.outlier and st.locked, float(m.quality[i])))
             if len(self._recent) > self.window:
                 del self._recent[0]
             t_s = float(edge) / fs
@@ -467,8 +468,8 @@ class PulseAnalyzer:
         # changes between pulses, lag-1 differences of raw pulses are pure noise
         st = self.static.mean
         scene = float(st @ st) / self._noise if self._noise > 0 else float("nan")
-        acc = np.array([r[1] for r in self._recent], dtype=np.float64)
-        qual = np.array([r[2] for r in self._recent], dtype=np.float64)
+        acc = np.array([r[0] for r in self._recent], dtype=np.float64)
+        qual = np.array([r[1] for r in self._recent], dtype=np.float64)
         # share of the informative matches that the track accepted, each weighted like the
         # filter weighs it (1 / measurement variance, i.e. quality squared)
         wq = qual * qual
@@ -491,7 +492,7 @@ class PulseAnalyzer:
                       alias_gap=self.aliases.verdict.gap if locked and self.aliases.verdict
                       else math.inf,
                       alias_note=self.aliases.note if locked else "",
-                      settings=decide_settings(self.cfg))
+                      settings=self._decide_settings)
 
 
 def new_analyzer(cfg: Config, ref: Reference, first: np.ndarray | None = None) -> PulseAnalyzer:

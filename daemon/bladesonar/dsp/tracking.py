@@ -332,15 +332,24 @@ class Tracker:
         s = self.settings.meas_sigma / max(float(quality), 0.05)
         return min(s, 0.5) ** 2
 
-    def _init(self) -> bool:
-        st = self.settings
-        if len(self._recent) < st.init_pulses:
-            return False
+    def _fit(self) -> tuple[np.ndarray, float, float, float]:
+        """Circular regression of the recent matches: (pulses, rate, phase, coherence)."""
         k, z, w = (np.array(v) for v in zip(*self._recent))
-        rate, phase, coh = circular_rate_search(k, z, w, st.max_rate)
-        self.coherence = coh
-        if coh < st.min_coherence:
+        rate, phase, coh = circular_rate_search(k, z, w, self.settings.max_rate)
+        return k, rate, phase, coh
+
+    def _init(self) -> bool:
+        if len(self._recent) < self.settings.init_pulses:
             return False
+        k, rate, phase, coh = self._fit()
+        self.coherence = coh
+        if coh < self.settings.min_coherence:
+            return False
+        self._lock(k, rate, phase, coh)
+        return True
+
+    def _lock(self, k: np.ndarray, rate: float, phase: float, coh: float) -> None:
+        """Start a track on the fitted line of the matches at pulses ``k``."""
         # wrapped-normal spread of the matches about the line -> initial covariance
         var = min(max(-2.0 * math.log(max(coh, 1e-9)) / (2 * math.pi) ** 2, 1e-8), 0.1)
         n = float(len(k))
@@ -353,7 +362,6 @@ class Tracker:
         self.outlier_run = 0
         self._accepted.clear()
         self._follow_from_track()
-        return True
 
     def recheck(self) -> bool:
         """Give up a track that the recent good matches mostly reject when another line
@@ -367,16 +375,14 @@ class Tracker:
         wsum = sum(w for w, _ in self._accepted)
         if not wsum > 1e-12 or sum(w for w, a in self._accepted if a) >= 0.5 * wsum:
             return False
-        k, z, w = (np.array(v) for v in zip(*self._recent))
-        rate, _, coh = circular_rate_search(k, z, w, st.max_rate)
+        k, rate, phase, coh = self._fit()
         span = max(float(k[-1] - k[0]), 1.0)
         if coh < st.min_coherence or abs(rate - float(self.x[1])) <= 1.0 / span:
             return False
-        self.x = self.fx = self.fP = None
-        if self._init():
-            self.rechecks += 1
-            return True
-        return False
+        self.coherence = coh
+        self._lock(k, rate, phase, coh)
+        self.rechecks += 1
+        return True
 
     def relock(self, rate: float, phase: float, k: int) -> None:
         """Move a locked track to another line (rate, phase at pulse ``k``), keeping its
