@@ -107,43 +107,30 @@ def temp_prefix(path: Path) -> str:
 
 @contextlib.contextmanager
 def atomic_writer(path: str | Path) -> Iterator[BinaryIO]:
-    """A binary file that appears at ``path`` only when the block ends without error:
-    written to ``.NAME.XXXX.tmp`` in the same folder, fsynced, renamed over ``path``.
-    On any error (a full disk, a signal) the temporary file is removed and ``path`` is
-    left as it was."""
-    p = Path(path)
-    folder = p.parent if str(p.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(p), suffix=".tmp", dir=folder)
+    """A binary file that appears at ``path`` only when the block ends without error
+    (:class:`AtomicFile` in one block): on any error (a full disk, a signal) the
+    temporary file is removed and ``path`` is left as it was."""
+    out = AtomicFile(path)
     try:
-        with os.fdopen(fd, "wb") as f:
-            yield f
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, p)
+        yield out.file
     except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        out.abort()
         raise
-    with contextlib.suppress(OSError):
-        dfd = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(dfd)
-        finally:
-            os.close(dfd)
+    out.commit()
 
 
 class AtomicFile:
     """A file written piece by piece that appears at ``path`` only on :meth:`commit`:
-    it is written to ``.NAME.XXXX.tmp`` in the same folder, then flushed, fsynced and
-    renamed over ``path``; :meth:`abort` (or a failed commit) removes the temporary file
-    and leaves ``path`` as it was. For writers that stream (WAV, truth sidecar);
-    :func:`atomic_writer` is the one-block form."""
+    it is written to ``.NAME.XXXX.tmp`` in the same folder, then flushed, fsynced,
+    renamed over ``path`` and the folder fsynced; :meth:`abort` (or a failed commit)
+    removes the temporary file and leaves ``path`` as it was. For writers that stream
+    (WAV, truth sidecar); :func:`atomic_writer` is the one-block form."""
 
     def __init__(self, path: str | Path, mode: str = "wb") -> None:
         self.path = Path(path)
-        folder = self.path.parent if str(self.path.parent) else Path(".")
+        self.folder = self.path.parent if str(self.path.parent) else Path(".")
         fd, self._tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp",
-                                         dir=folder)
+                                         dir=self.folder)
         self.file = os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"}))
         self.done = False
 
@@ -163,6 +150,12 @@ class AtomicFile:
             self.abort()
             raise
         self.done = True
+        with contextlib.suppress(OSError):
+            dfd = os.open(self.folder, os.O_RDONLY)
+            try:
+                os.fsync(dfd)
+            finally:
+                os.close(dfd)
 
     def abort(self) -> None:
         self.done = True
