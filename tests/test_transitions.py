@@ -179,21 +179,35 @@ def test_state_machine_needs_confirmation_and_fires_between_known_states():
     assert "reversed" not in published[40:56]      # unconfirmed: published as unknown
 
 
-def _slowing(rate, change):
-    return Decision("same", None, None, rate, None, 0.9, "test", rate_state="changing",
-                    rate_change_hz_s=change)
+def test_unknown_answers_pause_the_confirmation_within_twice_its_time():
+    """Closed form, 34 pulses/s, confirm 17 pulses: 10 'reversed', 5 unknown, 7 more
+    confirm at the 7th (17 within 34 pulses); 9, then 30 unknown, then 9 never do (at
+    most 9 within any 34 pulses); another known kind in between restarts the count."""
+    def run(seq):
+        tr = Transitions(TransitionSettings(confirm_s=0.5), 34.0)
+        fired = []
+        for i, d in enumerate(["same"] * 20 + seq):
+            fired += [(e.kind, e.pulse) for e in tr.step(i / 34.0, i, _d(d))[1]]
+        return fired
+    assert run(["reversed"] * 10 + ["unknown"] * 5 + ["reversed"] * 7) == [("reversed", 41)]
+    assert run(["reversed"] * 9 + ["unknown"] * 30 + ["reversed"] * 9) == []
+    assert run(["reversed"] * 10 + ["same"] + ["reversed"] * 16) == []
 
 
-def _quiet_after_slowing(st, rate=0.1, change=-0.05):
-    """Known turning, one 'changing' answer at t = 2.0 s, then quiet from 2.1 s; the time
-    the stop fires."""
-    tr = Transitions(st, 10.0)
-    for i in range(20):
-        tr.step(i * 0.1, i, _d("same"))
-    tr.step(2.0, 20, _slowing(rate, change))
-    for i in range(21, 120):
-        t = i * 0.1
-        state, ev = tr.step(t, i, _d("stopped"))
+def _slow_down(tr, t0, t1, r0, slope, pulse=0):
+    """Answers 'same' every 0.1 s from t0 to t1 on the line r0 + slope (t - t0)."""
+    n = int(round((t1 - t0) / 0.1))
+    for j in range(n + 1):
+        t = t0 + 0.1 * j
+        tr.step(t, pulse + j, _d("same", r0 + slope * (t - t0)))
+    return pulse + n + 1
+
+
+def _stop_time(tr, t0, pulse, until=20.0):
+    """'stopped' answers every 0.1 s from t0; the time the stop fires (None: never)."""
+    for j in range(int(round((until - t0) / 0.1))):
+        t = t0 + 0.1 * j
+        state, ev = tr.step(t, pulse + j, _d("stopped"))
         if ev:
             assert [e.kind for e in tr.events] == ["stopped"]
             return t
@@ -201,47 +215,65 @@ def _quiet_after_slowing(st, rate=0.1, change=-0.05):
     return None
 
 
+def _slowing_then_quiet(st):
+    """Known turning at 0.3 Hz, slowing at 0.05 Hz/s from t = 1 s to 4 s (0.15 Hz),
+    then quiet from 4.1 s; the time the stop fires."""
+    tr = Transitions(st, 10.0)
+    for i in range(10):
+        tr.step(i * 0.1, i, _d("same", 0.3))
+    k = _slow_down(tr, 1.0, 4.0, 0.3, -0.05, pulse=10)
+    return _stop_time(tr, 4.1, k)
+
+
 def test_a_slowing_fan_is_not_stopped_before_it_could_show_a_reversal():
-    """Closed form: a fan last seen at 0.1 Hz slowing at 0.05 Hz/s would pass zero 2 s
-    later (4.0 s) and, reversing, reach 0.1 Hz 2 s after that; plus the meter's lag of
-    0.5 s, no stop before 6.5 s (the cap after the meter fell quiet set out of reach)."""
-    t = _quiet_after_slowing(TransitionSettings(reversal_guard_s=10.0, meter_lag_s=0.5))
-    assert t is not None and 6.5 - 1e-9 <= t < 6.7
+    """Closed form: the answers' line reaches zero at 4 + 0.15/0.05 = 7 s; reversing, the
+    fan would be back at 0.1 Hz 2 s later, and seen 0.5 s after that: no stop before
+    9.5 s (the cap after the last turning answer set out of reach)."""
+    t = _slowing_then_quiet(TransitionSettings(reversal_guard_s=10.0, meter_lag_s=0.5))
+    assert t is not None and 9.5 - 1e-9 <= t < 9.7
 
 
-def test_the_wait_for_a_reversal_is_capped_after_the_meter_fell_quiet():
-    """A slow rate of change (an estimate) would push the wait far out: it never runs
-    beyond reversal_guard_s (2 s) after the meter fell quiet at 2.1 s."""
-    t = _quiet_after_slowing(TransitionSettings(), rate=0.2, change=-0.02)
-    assert t is not None and 4.1 - 1e-9 <= t < 4.3
+def test_the_wait_for_a_reversal_is_capped_after_the_fan_was_last_seen_turning():
+    """A stop is due within 3 s of rest: the wait never runs beyond reversal_guard_s
+    (3 s) after the last turning answer (4.0 s)."""
+    t = _slowing_then_quiet(TransitionSettings())
+    assert t is not None and 7.0 - 1e-9 <= t < 7.2
+
+
+def test_without_a_slowing_line_a_stop_needs_only_its_confirmation():
+    """Quiet right after a steady 0.3 Hz (an abrupt stop): stop_confirm_s (0.75 s) after
+    the first quiet answer, whatever the guard."""
+    tr = Transitions(TransitionSettings(reversal_guard_s=10.0), 10.0)
+    for i in range(40):
+        tr.step(i * 0.1, i, _d("same", 0.3))
+    t = _stop_time(tr, 4.0, 40)
+    assert t is not None and 4.7 - 1e-9 <= t < 4.9
 
 
 def test_a_fan_that_holds_its_speed_forgets_the_slowing():
-    """Slowing at 0.1 Hz/s from 0.3 Hz, then holding 0.3 Hz for 1.2 s (well above the
-    ramp's line, 0.18 Hz by then): a stop after that needs only stop_confirm_s."""
-    tr = Transitions(TransitionSettings(), 10.0)
-    for i in range(20):
-        tr.step(i * 0.1, i, _d("same"))
-    tr.step(2.0, 20, _slowing(0.3, -0.1))
-    for j in range(12):
-        tr.step(2.1 + 0.1 * j, 21 + j, _d("same", 0.3))
-    fired = [tr.step(3.3 + 0.1 * j, 33 + j, _d("stopped"))[1] for j in range(1, 10)]
-    assert [e.kind for f in fired for e in f] == ["stopped"]   # after stop_confirm_s only
+    """Slowing at 0.1 Hz/s from 0.5 to 0.3 Hz, then holding 0.3 Hz for 2.1 s (the slope
+    of the last 2 s of answers is 0): a stop after that needs only stop_confirm_s."""
+    tr = Transitions(TransitionSettings(reversal_guard_s=10.0), 10.0)
+    for i in range(10):
+        tr.step(i * 0.1, i, _d("same", 0.5))
+    k = _slow_down(tr, 1.0, 3.0, 0.5, -0.1, pulse=10)
+    for j in range(21):
+        tr.step(3.1 + 0.1 * j, k + j, _d("same", 0.3))
+    t = _stop_time(tr, 5.3, k + 21)
+    assert t is not None and 6.0 - 1e-9 <= t < 6.2
 
 
-def test_a_settled_answer_on_the_ramp_line_keeps_the_guard():
-    """Near the floor a slowing fan often reads 'settled': on the ramp's line that does
-    not end the wait for a possible reversal."""
-    tr = Transitions(TransitionSettings(), 10.0)
-    for i in range(20):
-        tr.step(i * 0.1, i, _d("same"))
-    tr.step(2.0, 20, _slowing(0.2, -0.1))                  # zero by 4.0 s
-    tr.step(2.5, 21, _d("same", 0.15))                     # settled, on the line
-    fired = [tr.step(2.5 + 0.1 * j, 21 + j, _d("stopped"))[1] for j in range(1, 50)]
-    t_fired = [2.5 + 0.1 * (j + 1) for j, f in enumerate(fired) if f]
-    # zero by 4 s, + 0.1/0.1 + 0.5 s = 5.5 s, capped 2 s after the meter fell quiet (2.6 s);
-    # without the guard: 2.6 + 0.75 s
-    assert t_fired and 4.6 - 1e-9 <= t_fired[0] < 4.8
+def test_slow_answers_keep_the_guard():
+    """Below three times the floor the answers neither move the line nor end the wait,
+    not even answers stuck at one rate (near the floor the track lags and flattens);
+    zero by 5 s from the line, + 0.1/0.1 + 0.5 s."""
+    tr = Transitions(TransitionSettings(reversal_guard_s=10.0), 10.0)
+    for i in range(10):
+        tr.step(i * 0.1, i, _d("same", 0.4))
+    k = _slow_down(tr, 1.0, 3.0, 0.4, -0.1, pulse=10)      # 0.2 Hz at 3 s: zero by 5 s
+    k = _slow_down(tr, 3.1, 4.0, 0.14, 0.0, pulse=k)       # stuck at 0.14 Hz
+    t = _stop_time(tr, 4.1, k)
+    assert t is not None and 5.0 + 1.5 - 1e-9 <= t < 6.7
 
 
 def test_slow_new_direction_is_not_taken():

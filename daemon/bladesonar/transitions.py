@@ -10,9 +10,12 @@ evidence has held for a while:
 * ``stopped``: the short motion meter has seen no change beyond noise over its window
   and for ``stop_confirm_s`` more (a fan reversed through zero passes slowly through
   rest, but not for that long). A fan seen slowing down steadily is not called stopped
-  before it could have come back, if it were reversing through zero, to a rate the meter
-  sees (``change_factor`` times the floor) at the same rate of change: a slow reversal
-  (0.06 Hz/s) is below the meter's reach for about a second on each side of zero;
+  before it could have come back, if it were reversing through zero, to a rate that is
+  seen again (``change_factor`` times the floor) at the same rate of change: a slow
+  reversal (0.06 Hz/s) is out of the meter's and the track's reach for about two seconds
+  on each side of zero. The rate of change is the slope of the recent answers at rates
+  the track follows well (three times the floor and up): nearer rest the track lags and
+  flattens, and an estimate from there put the zero seconds late;
 * ``turning`` one way or the other (``same`` / ``reversed`` relative to the reference):
   a confident track at or above ``rate_floor_hz`` for ``confirm_s``; a *new* direction
   (a start, a reversal) needs ``change_factor`` times the floor, since the end of a
@@ -29,6 +32,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections import deque
 from dataclasses import dataclass, replace
 
 from .dsp.decide import Decision
@@ -55,10 +59,12 @@ class TransitionSettings:
     confirm_s: float = 0.5
     stop_confirm_s: float = 0.75
     change_factor: float = 2.0
-    #: longest wait (after the meter fell quiet) for a slowing fan to show a reversal,
-    #: and the meter's own lag (s)
-    reversal_guard_s: float = 2.0
+    #: longest wait, after the fan was last seen turning, for a slowing fan to show a
+    #: reversal; the lag of the meter and the track in seeing it (s)
+    reversal_guard_s: float = 3.0
     meter_lag_s: float = 0.5
+    #: answers over this span (s) give the slowing fan's rate of change
+    slope_span_s: float = 2.0
 
 
 @dataclass(frozen=True)
@@ -101,17 +107,15 @@ class Transitions:
         self._stop_confirm = max(int(round(settings.stop_confirm_s * prf_hz)), 1)
         self.known: str | None = None        # confirmed kind: 'stopped', '+', '-'
         self.known_decision: Decision | None = None
-        self._cand: str | None = None
+        self._cand: str | None = None        # the last known kind answered
+        self._support: deque[tuple[int, int]] = deque()   # (pulse, pulses) for _cand
         self._cand_n = 0
         self._zero_by: float | None = None   # a slowing fan would pass zero by then (s)
-        self._quiet_since = 0.0              # when the current candidate state began (s)
         self._slowing_hz_s = 0.0
+        self._seen: deque[tuple[float, float]] = deque()   # (t, rate) turning, well above
+        self._seen_kind: str | None = None
+        self._last_turning = -math.inf       # the last turning answer (s)
         self.events: list[Event] = []        # all events so far (the caller may clear)
-
-    @property
-    def stopped(self) -> bool:
-        """The confirmed state is stopped (the static-room estimate then holds still)."""
-        return self.known == "stopped"
 
     def step(self, t_s: float, pulse: int, d: Decision, pulses: int = 1
              ) -> tuple[Decision, list[Event]]:
@@ -127,15 +131,22 @@ class Transitions:
                                f"needed for a new direction): {d.reason}")
             cand = None
         self._watch_slowing(t_s, d)
-        if cand == self._cand:
-            self._cand_n += pulses
-        else:
-            self._cand, self._cand_n = cand, pulses
-            self._quiet_since = float(t_s)
+        if cand in ("+", "-"):
+            self._last_turning = float(t_s)
+        if cand is not None and cand != self._cand:
+            self._cand = cand
+            self._support.clear()
         fired: list[Event] = []
         if cand is None:
             return d, fired
         need = self._stop_confirm if cand == "stopped" else self._confirm
+        # pulses for the candidate within twice its confirmation time: an unknown answer
+        # between them (a weak window, an alias check's doubt) pauses the count instead
+        # of restarting it; an answer of another kind restarts it
+        self._support.append((int(pulse), int(pulses)))
+        while self._support and self._support[0][0] <= int(pulse) - 2 * need:
+            self._support.popleft()
+        self._cand_n = sum(n for _, n in self._support)
         if cand != self.known:
             guard = self._reversal_guard(t_s) if cand == "stopped" else None
             if self._cand_n < need or guard is not None:
@@ -160,33 +171,56 @@ class Transitions:
         return d, fired
 
     def _watch_slowing(self, t_s: float, d: Decision) -> None:
-        """Remember when a fan seen slowing down steadily would reach zero. A turning
-        answer well above that ramp's line (the fan held or regained its speed) forgets
-        it; one on the line keeps it (near the floor the rate often reads 'settled')."""
-        if _kind(d.direction) not in ("+", "-") or d.rate_hz is None or \
-                not math.isfinite(d.rate_hz):
+        """Remember when a fan seen slowing down steadily would reach zero: the line of
+        the recent answers at rates the track follows well (three times the floor and
+        up), extrapolated; such answers that no longer fall (the fan held or regained its
+        speed) forget it. Slower answers change nothing: there the track lags and
+        flattens (it read 0.13 Hz for a second while the fan went from 0.08 Hz to 0.04)."""
+        kind = _kind(d.direction)
+        if kind not in ("+", "-") or d.rate_hz is None or not math.isfinite(d.rate_hz):
             return
-        change = d.rate_change_hz_s
-        if d.rate_state == "changing" and change is not None and change < 0:
-            self._zero_by = float(t_s) + float(d.rate_hz) / -float(change)
-            self._slowing_hz_s = -float(change)
-        elif self._zero_by is not None:
-            on_line = self._slowing_hz_s * max(self._zero_by - float(t_s), 0.0)
-            if d.rate_hz > on_line + 0.05 + 0.2 * on_line:
+        t, rate = float(t_s), float(d.rate_hz)
+        if kind != self._seen_kind:
+            self._seen.clear()
+            self._seen_kind, self._zero_by = kind, None
+        if rate >= 3.0 * self.settings.rate_floor_hz:
+            self._seen.append((t, rate))
+            while self._seen and self._seen[0][0] < t - self.settings.slope_span_s:
+                self._seen.popleft()
+            slope = _slope(self._seen, min_span_s=0.5 * self.settings.slope_span_s)
+            if slope is not None and slope < -0.01:
+                self._slowing_hz_s = -slope
+                self._zero_by = t + rate / -slope
+            else:
                 self._zero_by = None
 
     def _reversal_guard(self, t_s: float) -> float | None:
         """Until when a stop must wait for a slowing fan to show a reversal (None: no
         wait): the time it would take, after zero, to reach ``change_factor`` times the
-        floor at its rate of change, plus the meter's lag, at most ``reversal_guard_s``."""
+        floor at its rate of change, plus the lag of seeing it, but never beyond
+        ``reversal_guard_s`` after the fan was last seen turning (a stop is due within
+        3 s of rest, and the slope is an estimate)."""
         st = self.settings
         if self._zero_by is None or self.known not in ("+", "-"):
             return None
         visible = st.change_factor * st.rate_floor_hz
-        wait = min(visible / max(self._slowing_hz_s, 1e-9) + st.meter_lag_s,
-                   st.reversal_guard_s)
-        until = self._zero_by + wait
-        # the rate of change is a noisy estimate and the zero time an extrapolation: the
-        # wait never runs beyond reversal_guard_s after the meter fell quiet
-        until = min(until, self._quiet_since + st.reversal_guard_s)
+        until = self._zero_by + visible / max(self._slowing_hz_s, 1e-9) + st.meter_lag_s
+        until = min(until, self._last_turning + st.reversal_guard_s)
         return until if t_s < until else None
+
+
+def _slope(points: deque[tuple[float, float]], *, min_span_s: float) -> float | None:
+    """Least-squares slope of (t, rate) points (Hz/s); None over less than
+    ``min_span_s`` or fewer than four points."""
+    if len(points) < 4:
+        return None
+    t = [p[0] for p in points]
+    if t[-1] - t[0] < min_span_s:
+        return None
+    n = float(len(points))
+    mt = sum(t) / n
+    mr = sum(p[1] for p in points) / n
+    stt = sum((ti - mt) ** 2 for ti in t)
+    if not stt > 0:
+        return None
+    return sum((ti - mt) * (p[1] - mr) for ti, p in zip(t, points)) / stt
