@@ -121,6 +121,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                                 lo_open=True, hi=1.0),
                    help="clip samples at +-LEVEL (full scale = 1) and count them "
                         "(default: no clipping below full scale)")
+    n.add_argument("--coupling-gain", metavar="G",
+                   type=_number("give a gain from 0 to 1000", lo=0.0, hi=1e3),
+                   help="direct speaker -> microphone gain (default: the scene's "
+                        "coupling_gain); above 1 / waveform.amplitude the coupling is clipped "
+                        "at the converter, as on a phone")
+    n.add_argument("--nuisance", metavar="KEY=VALUE", action="append",
+                   help="a real device's or room's nuisance, over the scene's nuisances: "
+                        "e.g. rt60_s=0.5, agc_db=3, burst_fraction=0.1, "
+                        "speaker_highpass_hz=400, speed_of_sound=346, walker_speed_m_s=1 "
+                        "(repeat the option; all keys in docs/simulator.md)")
     o = p.add_argument_group("paths and output")
     o.add_argument("--no-wall-bounces", action="store_true",
                    help="keep only the direct blade echo (plus coupling and static wall "
@@ -170,7 +180,14 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError("--snr-db", args.snr_db, "must be a number from -60 to 200 dB, or "
                           "inf for no noise")
     seed = cfg.sim.seed if args.seed is None else args.seed
-    sim = Simulator(scene, cfg, schedule, snr_db=snr, seed=seed,
+    if args.coupling_gain is not None:
+        import dataclasses
+
+        scene = dataclasses.replace(scene, coupling_gain=float(args.coupling_gain))
+    from ..sim.nuisances import parse_assignments
+
+    nz = parse_assignments(args.nuisance, base=scene.nuisances)
+    sim = Simulator(scene, cfg, schedule, snr_db=snr, seed=seed, nuisances=nz,
                     start_offset=args.start_offset, drift_ppm=args.drift_ppm,
                     dropouts=args.dropouts, dropout_samples=args.dropout_samples,
                     dropout_mode=args.dropout_mode, dc_offset=args.dc_offset, clip=args.clip,

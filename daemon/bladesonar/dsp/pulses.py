@@ -6,6 +6,21 @@ with a windowed-sinc interpolant, so a capture clock that runs up to a few hundr
 the playback clock (0.26 sample per pulse at 200 ppm) still yields pulses on one grid.
 Fractional shifts are applied only to the gated window (never to the whole recording).
 
+A direct coupling louder than full scale is clipped at the converter (normal on a phone or
+a board whose speaker sits centimetres from the microphone): its top is a plateau, and the
+band-limited peak fit cannot time it (the plateau's centre jumps between the lobes of a
+ringing speaker as the sub-sample position drifts). Such an edge is timed by matching the
+whole clipped coupling (:data:`TEMPLATE_BEFORE` to :data:`TEMPLATE_AFTER` samples around
+it, clipped samples, plateau edges and the unclipped ringing alike) against the first
+pulse's: the lag of the best match, refined by a parabola, is a coarse measurement whose
+error is a function of the sub-sample position. The edges then follow the transmit
+schedule: one clock drives playback and capture, so the edges lie on a line, and a slow
+alpha-beta loop on the measurements follows that line (:data:`CLIP_ALPHA`): with a shared
+clock exactly (the error is then the same on every pulse: a constant range offset of a
+fraction of a sample), under clock drift to a few hundredths of a sample. Clipped samples
+of the coupling itself are counted, not held against the pulse; clipping anywhere else in
+the gate still is.
+
 A capture drop-out shows up as a direct pulse that is missing or not where the clock says
 it should be: the aligner reports the pulse, re-acquires the edge and goes on, rather than
 misaligning everything after it.
@@ -33,6 +48,20 @@ _KAISER_BETA = 8.0
 _I0_BETA = float(i0(_KAISER_BETA))
 #: Fine grid step used to find the sub-sample peak of the direct coupling, samples.
 _EDGE_GRID = 1.0 / 32.0
+#: Gains of the schedule loop that times a clipped coupling: the edge moves by CLIP_ALPHA
+#: and the PRI by CLIP_BETA of the measurement's distance from the prediction (a
+#: critically damped alpha-beta pair: BETA = ALPHA^2 / (2 - ALPHA)); the measurement's
+#: error, up to a few tenths of a sample, is averaged over some 20 pulses.
+CLIP_ALPHA = 0.1
+CLIP_BETA = CLIP_ALPHA ** 2 / (2.0 - CLIP_ALPHA)
+#: Samples past a clipped coupling's last clipped sample that still belong to it: the
+#: fractional-shift kernel spreads the plateau's corners this far.
+COUPLING_GUARD = 16
+#: Samples before and after the coarse edge that a clipped coupling is matched over.
+TEMPLATE_BEFORE = 16
+TEMPLATE_AFTER = 112
+#: Correlation coefficient below which a clipped coupling does not match the first one.
+TEMPLATE_MIN_CORR = 0.7
 
 # Pulse status codes ------------------------------------------------------------------
 OK = 0
@@ -208,6 +237,12 @@ class PulseAligner:
     _acq_pris: int = 3
     max_lead_in: int = 64
     _lead_in: int = 0                # PRIs skipped before the first direct pulse
+    coupling_clipped: int = 0
+    """Pulses whose direct coupling was clipped (timed by the schedule loop)."""
+    edges_measured: int = 0
+    """Direct-coupling edges measured (clipped or not)."""
+    _clip_span: int = 0              # delay of the latest clipped coupling sample seen
+    _template: np.ndarray | None = field(default=None, repr=False)  # first clipped coupling
 
     def __post_init__(self) -> None:
         if self.pri < 64:
@@ -222,6 +257,12 @@ class PulseAligner:
     def acquired(self) -> bool:
         """Whether the first direct-coupling edge has been found."""
         return self._next is not None
+
+    @property
+    def coupling_zone(self) -> int:
+        """Delays (samples after the edge) that belong to a clipped coupling: clipping
+        there is counted, not held against the pulse. 0 while no coupling was clipped."""
+        return self._clip_span + COUPLING_GUARD if self._template is not None else 0
 
     @property
     def period(self) -> float:
@@ -294,26 +335,69 @@ class PulseAligner:
         x = self._buf
         self._polarity = 1.0 if x[p] >= 0 else -1.0
         at = self._offset + p                 # stream position (_seg counts in those)
+        if abs(x[p]) >= self.clip_level:
+            # clipped: the first clipped sample of this pulse is the time reference
+            near = np.abs(self._seg(at - KERNEL_HALF, at + 1)) >= self.clip_level
+            at -= KERNEL_HALF - int(np.argmax(near))
+            self._template = self._seg(at - TEMPLATE_BEFORE, at + TEMPLATE_AFTER)
+            self._note_clip_span(self._template, 0.0)
+            self._amp = self.clip_level
+            self._next = float(at)
+            return True
         seg = self._polarity * self._seg(at - KERNEL_HALF, at + KERNEL_HALF + 1)
         off, height = refine_peak(seg)
         self._amp = height
         self._next = self._offset + p + off
         return True
 
-    def _measure(self, pred: float, half: int) -> tuple[float, float] | None:
-        """Edge near ``pred`` (within ``half`` samples): (position, height) or None."""
+    def _note_clip_span(self, seg: np.ndarray, off: float) -> None:
+        """Widen the coupling zone to the last clipped sample of a coupling segment that
+        starts TEMPLATE_BEFORE samples before an edge ``off`` samples past its start."""
+        at = np.nonzero(np.abs(seg) >= self.clip_level)[0]
+        if len(at):
+            self._clip_span = max(self._clip_span,
+                                  int(math.ceil(at[-1] - TEMPLATE_BEFORE - off)))
+
+    def _match_template(self, pred: float, half: int) -> tuple[float, float, bool] | None:
+        """A clipped edge near ``pred``: the lag (within ``half``) where the coupling best
+        matches the first one, refined by a parabola; None if nothing there resembles it."""
+        T = self._template
+        assert T is not None
+        c = int(round(pred))
+        seg = self._seg(c - half - TEMPLATE_BEFORE, c + half + TEMPLATE_AFTER)
+        win = sliding_window_view(seg, len(T))
+        r = win @ T
+        i = int(np.argmax(r))
+        e2 = float(win[i] @ win[i]) * float(T @ T)
+        if not e2 > 0 or r[i] < TEMPLATE_MIN_CORR * math.sqrt(e2):
+            return None
+        d = 0.0
+        if 0 < i < len(r) - 1:
+            den = r[i - 1] - 2.0 * r[i] + r[i + 1]
+            d = min(max(0.5 * (r[i - 1] - r[i + 1]) / den, -0.5), 0.5) if den < 0 else 0.0
+        self._note_clip_span(win[i], 0.0)
+        return c - half + i + d, self.clip_level, bool(
+            np.abs(win[i]).max() >= self.clip_level)
+
+    def _measure(self, pred: float, half: int) -> tuple[float, float, bool] | None:
+        """Edge near ``pred`` (within ``half`` samples): (position, height, clipped) or
+        None."""
+        if self._template is not None:
+            return self._match_template(pred, half)
         c = int(round(pred))
         w = self._polarity * self._seg(c - half, c + half + 1)
         p = c - half + int(np.argmax(w))
         seg = self._polarity * self._seg(p - KERNEL_HALF, p + KERNEL_HALF + 1)
         off, height = refine_peak(seg)
-        if not (0.7 * self._amp <= height <= 1.4 * self._amp):
+        if not 0.7 * self._amp <= height <= 1.4 * self._amp:
             return None
-        return p + off, height
+        return p + off, height, False
 
-    def _reacquire(self, pred: float) -> tuple[float, float] | None:
+    def _reacquire(self, pred: float) -> tuple[float, float, bool] | None:
         """After a lost edge: the strongest plausible direct pulse within half a PRI."""
         half = self.pri // 2
+        if self._template is not None:
+            return self._match_template(pred, half)
         c = int(round(pred))
         w = self._polarity * self._seg(c - half, c + half + 1)
         for p in np.argsort(w)[::-1][:4]:
@@ -340,13 +424,24 @@ class PulseAligner:
                 if not final or int(math.floor(pred)) + self.search + KERNEL_HALF + 2 > self._end:
                     break
             got = self._measure(pred, self.search)
-            if got is not None and abs(got[0] - pred) <= self.shift_tol:
-                e = got[0]
-                # alpha-beta tracking of the PRI (clock drift); bounded
+            # a clipped edge's coarse measurement is off by up to half a sample: more slack
+            tol = self.shift_tol + (0.5 if self._template is not None else 0.0)
+            if got is not None:
+                self.edges_measured += 1
+            if got is not None and abs(got[0] - pred) <= tol:
                 lim = self.pri * self.max_drift_ppm * 1e-6
-                self._period = min(max(self._period + 0.1 * (e - pred), self.pri - lim),
-                                   self.pri + lim)
-                self._amp += 0.05 * (got[1] - self._amp)
+                err = got[0] - pred
+                if self._template is not None:
+                    # clipped: the edge follows the schedule's line (slow alpha-beta loop)
+                    self.coupling_clipped += int(got[2])
+                    e = pred + CLIP_ALPHA * err
+                    step = CLIP_BETA * err
+                else:
+                    # alpha-beta tracking of the PRI (clock drift); bounded
+                    e = got[0]
+                    step = 0.1 * err
+                    self._amp += 0.05 * (got[1] - self._amp)
+                self._period = min(max(self._period + step, self.pri - lim), self.pri + lim)
                 status = OK
             else:
                 got = self._reacquire(pred) if need <= self._end else None
@@ -395,7 +490,9 @@ class PulseAligner:
         core = raw[:, KERNEL_HALF - 1:KERNEL_HALF - 1 + L]
         finite = np.isfinite(raw).all(axis=1)
         status[(status == OK) & ~finite] = NAN
-        clipped = (np.abs(np.where(np.isfinite(core), core, 0.0)) >= self.clip_level).any(axis=1)
+        # a clipped coupling is handled (timed by the schedule): only clipping past it counts
+        past = core[:, max(self.coupling_zone - g.start, 0):]
+        clipped = (np.abs(np.where(np.isfinite(past), past, 0.0)) >= self.clip_level).any(axis=1)
         status[(status == OK) & clipped] = CLIPPED
         silent = ~(np.abs(np.where(np.isfinite(core), core, 0.0)) > 0.0).any(axis=1)
         status[(status == OK) & silent] = SILENT
@@ -496,10 +593,21 @@ def too_few_pulses(usable: int, total: int, n_samples: int, *, pri: int, sample_
                       f"{min_pulses} are needed: {fix}")
 
 
+#: Half width (samples) of the stretch of a PRI where clipped samples count as the direct
+#: coupling's (they recur at one place every PRI; the window allows for clock drift).
+COUPLING_CLIP_HALF = 128
+
+
 class RecordingCheck:
     """:func:`check_recording` over a recording read in blocks (memory independent of its
     length): feed each block to :meth:`update` (NaN/inf raise at once, with the sample
-    number), then :meth:`finish` gives the verdict on the whole."""
+    number), then :meth:`finish` gives the verdict on the whole.
+
+    Clipped samples that recur at one place of every PRI are the direct coupling's (a
+    speaker centimetres from the microphone): they are counted apart
+    (:attr:`coupling_clipped`) and do not make the recording overloaded; the aligner
+    times such edges without their peak. Clipping anywhere else does.
+    """
 
     def __init__(self, *, pri: int, min_pulses: int, clip_level: float = 32767.0 / 32768.0,
                  max_clip_fraction: float = 0.01, sample_rate: float | None = None) -> None:
@@ -511,6 +619,7 @@ class RecordingCheck:
         self.clipped = 0
         self.bad = 0
         self.first_bad: int | None = None
+        self._clip_at = np.zeros(self.pri, dtype=np.int64)   # clipped samples by PRI position
 
     def update(self, x: np.ndarray) -> None:
         """One block; raises on NaN/inf samples."""
@@ -525,17 +634,40 @@ class RecordingCheck:
         if len(x):
             ax = np.abs(x)
             self.peak = max(self.peak, float(ax.max()))
-            self.clipped += int(np.count_nonzero(ax >= self.clip_level))
+            at = np.nonzero(ax >= self.clip_level)[0]
+            if len(at):
+                self.clipped += len(at)
+                self._clip_at += np.bincount((self.n + at) % self.pri, minlength=self.pri)
         self.n += len(x)
 
     @property
     def silent(self) -> bool:
         return self.peak < 1e-6
 
+    @property
+    def coupling_clipped(self) -> int:
+        """Clipped samples in the stretch of the PRI where most of them recur (the direct
+        coupling's), when they recur there in at least half the PRIs and hold at least
+        half of all clipped samples; else 0."""
+        if not self.clipped:
+            return 0
+        w = 2 * COUPLING_CLIP_HALF + 1
+        h = self._clip_at
+        c = np.concatenate([h, h[:w - 1]]).cumsum()
+        win = c[w - 1:] - np.concatenate([[0], c[:-w]])
+        best = int(win.max())
+        recurs = 2 * best >= self.n // self.pri
+        return best if recurs and 2 * best >= self.clipped else 0
+
+    @property
+    def overload_clipped(self) -> int:
+        """Clipped samples that are not the direct coupling's."""
+        return self.clipped - self.coupling_clipped
+
     def explain(self) -> None:
         """When the analysis of a stream fails part-way: raise the recording's own fault
         if what was fed so far shows one (silent, overloaded), else return."""
-        if self.silent or (self.n and self.clipped / self.n > self.max_clip_fraction):
+        if self.silent or (self.n and self.overload_clipped / self.n > self.max_clip_fraction):
             self.finish()
 
     def finish(self) -> list[str]:
@@ -558,9 +690,10 @@ class RecordingCheck:
             raise InputError(f"the recording holds {n_pulses} pulses ({self.n} samples at "
                              f"{self.pri} samples per pulse) but at least {self.min_pulses} "
                              "are needed; record longer")
-        if self.clipped:
-            frac = self.clipped / self.n
-            msg = (f"{self.clipped} samples ({100 * frac:.2f}%) are clipped at full scale; "
+        over = self.overload_clipped
+        if over:
+            frac = over / self.n
+            msg = (f"{over} samples ({100 * frac:.2f}%) are clipped at full scale; "
                    "lower the playback volume or the capture gain")
             if frac > self.max_clip_fraction:
                 raise InputError("the recording is overloaded: " + msg)

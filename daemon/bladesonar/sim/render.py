@@ -22,6 +22,15 @@ rendering, so streaming needs one pass. If the fan never echoes inside the gate,
 reference falls back to all echoes in the gate, then to the coupling peak power (recorded
 as ``snr.reference`` in the truth).
 
+Real devices and rooms (``nuisances``, sim/nuisances.py), each where it happens: the small
+speaker's response shapes the transmitted pulse (every path, the coupling too); the late
+reverberation (sim/reverb.py) and a walking person (sim/walker.py) are echoes of the room;
+interference bursts (sim/device.py) arrive at the microphone with the noise; then the
+microphone's gain and AGC wander scale all of it; the converter clips at full scale
+(always: a coupling above full scale is clipped there, as on a phone) and quantises. The
+room's speed of sound may differ from the config's (``speed_of_sound``): the delays are the
+room's, the gate and the truth's delays the config's view.
+
 Drop-outs: runs of capture samples lost. ``mode="remove"`` (default) deletes them, so later
 samples shift earlier (what an ALSA overrun does); ``mode="zero"`` zeroes them in place. The
 output always has ``round(seconds * fs)`` samples; with removal the capture covers that
@@ -40,9 +49,13 @@ import numpy as np
 
 from .. import waveform
 from ..errors import ConfigError
+from . import device as _device
 from . import geometry
 from . import schedule as _schedule
+from .nuisances import Nuisances
+from .reverb import Tail
 from .scene import Scene
+from .walker import walker_paths
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +119,8 @@ class Simulator:
     clip : clip level in (0, 1]; samples beyond are clipped and counted; None: none.
     wall_bounces : False keeps only the direct blade echo (plus coupling and walls).
     include_paths : put each pulse's path list in its truth record.
+    nuisances : what a real device and room add (sim/nuisances.py); None: the scene's,
+        else none.
     """
 
     def __init__(self, scene: Scene, cfg, schedule: Any = None, *, snr_db: float | None = None,
@@ -113,17 +128,21 @@ class Simulator:
                  dropouts: int | Sequence[tuple[int, int]] = 0, dropout_samples: int = 64,
                  dropout_mode: str = "remove", dc_offset: float = 0.0,
                  clip: float | None = None, wall_bounces: bool = True,
-                 include_paths: bool = True) -> None:
+                 include_paths: bool = True, nuisances: Nuisances | None = None) -> None:
         self.scene = scene.with_config(cfg)
+        self.nz = nuisances if nuisances is not None else (scene.nuisances or Nuisances())
         self.cfg = cfg
         if schedule is None:
             schedule = scene.schedule if scene.schedule is not None else cfg.sim.schedule
         self.schedule = _schedule.parse(schedule, key="schedule")
         self.fs = float(cfg.audio.sample_rate)
         self.pri = int(cfg.waveform.pri_samples)
-        self.c = float(cfg.scene.speed_of_sound)
+        #: the room's speed of sound (delays); the config's is what the analysis assumes
+        self.c = float(self.nz.speed_of_sound or cfg.scene.speed_of_sound)
+        self.c_cfg = float(cfg.scene.speed_of_sound)
         self.amplitude = float(cfg.waveform.amplitude)
-        self.shape = waveform.cfg_pulse(cfg)
+        self.speaker = _device.speaker_response(self.nz, self.fs)
+        self.shape = np.convolve(waveform.cfg_pulse(cfg), self.speaker)
         self.wall_bounces = bool(wall_bounces)
         self.include_paths = bool(include_paths)
         if snr_db is not None and not (isinstance(snr_db, (int, float)) and math.isfinite(snr_db)
@@ -171,7 +190,27 @@ class Simulator:
         self._dmax = self._max_delay_samples()
         self._kind = geometry.path_table(self.scene, np.zeros(1),
                                          wall_bounces=self.wall_bounces).kind
+        self.tail = self._make_tail()
+        self.bursts: list[_device.Burst] = []
+        self.burst_rms = 0.0
+        self._burst_cache: tuple[int, np.ndarray] | None = None
 
+    def _make_tail(self) -> Tail | None:
+        """The late reverberation: begins at the earliest second-order echo (twice the
+        nearest wall's delay), its level relative to the median first-order wall echo."""
+        if self.nz.rt60_s <= 0:
+            return None
+        p = geometry.paths(self.scene, 0.0, wall_bounces=False)
+        walls = p.kind == "wall"
+        if walls.any():
+            d = p.delay_samples(self.c, self.fs)[walls]
+            g = float(np.median(p.gain[walls]))
+            start = 2.0 * float(d.min())
+        else:
+            g, start = 0.1, 0.02 * self.fs
+        level = self.amplitude * g * 10 ** (self.nz.reverb_db / 20)
+        return Tail(self.nz.rt60_s, start, level, self.nz.reverb_fan_share, self.shape,
+                    self.fs, self.seed)
     # ------------------------------------------------------------------ set-up
     def _warn_stiff(self) -> None:
         top = self.schedule.max_abs_hz
@@ -256,9 +295,13 @@ class Simulator:
         while self.n_pulses > 0 and self._edge(self.n_pulses - 1) >= self.n_capture:
             self.n_pulses -= 1
         self.sigma, p_fan, ref = 0.0, None, None
-        if self.snr_db is not None:
+        self._p_echo = 0.0
+        if self.snr_db is not None or self.nz.burst_fraction:
             p_fan, ref = self._reference_power()
+        if self.snr_db is not None:
             self.sigma = math.sqrt(p_fan / 10 ** (self.snr_db / 10))
+        self.bursts = _device.place_bursts(self.nz, self.seed, self.n_capture, self.fs)
+        self.burst_rms = math.sqrt(self._p_echo * 10 ** (self.nz.burst_db / 10))
         g0, g1, gm = gate_samples(self.cfg)
         c = self.cfg
         self.meta = dict(
@@ -274,6 +317,17 @@ class Simulator:
                           runs=[dict(output_index=d.output_index, capture_index=d.capture_index,
                                      samples=d.samples) for d in self.dropouts]),
             dc_offset=self.dc_offset, clip=self.clip, wall_bounces=self.wall_bounces,
+            nuisances=dict(
+                settings=self.nz.active, speed_of_sound_room=self.c,
+                speed_of_sound_config=self.c_cfg, speaker_taps=len(self.speaker),
+                tail_pris=None if self.tail is None else self.nz.rt60_s * self.fs / self.pri,
+                burst_rms=self.burst_rms if self.bursts else None,
+                bursts=[dict(capture_index=b.capture_index, samples=b.samples)
+                        for b in self.bursts],
+                full_scale=_device.FULL_SCALE,
+                order="speaker -> room (paths, late tail, walker) -> + noise + bursts -> "
+                      "x mic gain and AGC -> dc offset -> clip level -> converter (clip at "
+                      "full scale, quantise) -> drop-outs"),
             aliasing_limit_hz=self.alias_limit_hz,
             snr=dict(snr_db=self.snr_db, noise_sigma=self.sigma, fan_power=p_fan,
                      reference=ref, gate_m=list(gm), gate_samples=[g0, g1],
@@ -337,7 +391,7 @@ class Simulator:
             fan = np.isin(self._kind, geometry.FAN_KINDS)[None, :] & v
             echo = (self._kind != "coupling")[None, :] & v
             for name, m in (("fan", fan), ("all_echoes", echo)):
-                if name == "all_echoes" and sums["fan"] > 0:
+                if name == "all_echoes" and sums["fan"] > 0 and not self.nz.burst_fraction:
                     continue
                 rows = np.nonzero(m)[0]
                 idx, w = waveform.shaped_taps(d[m], self.amplitude * g[m], self.shape)
@@ -348,6 +402,7 @@ class Simulator:
                 sums[name] += float(np.sum(buf * buf))
             self._blocks.clear()
         n = self.n_pulses * G
+        self._p_echo = sums["all_echoes"] / n
         for name in ("fan", "all_echoes"):
             if sums[name] > 0:
                 return sums[name] / n, name
@@ -373,9 +428,45 @@ class Simulator:
         k = np.arange(k0, k1, dtype=np.float64)[:, None]
         pos = ((self.offset + k * self.pri) + d) * self.scale
         pos, amp = pos[v], self.amplitude * g[v]
+        if self.nz.walker_speed_m_s > 0:
+            t = (self.offset + k[:, 0] * self.pri) / self.fs
+            length, gain, here = walker_paths(self.nz, self.scene, t)
+            wp = ((self.offset + k[:, 0] * self.pri) + length / self.c * self.fs) * self.scale
+            pos = np.concatenate([pos, wp[here]])
+            amp = np.concatenate([amp, self.amplitude * gain[here]])
         near = (pos > n0 - tail - 1) & (pos < n1 + H + 1)
         idx, w = waveform.shaped_taps(pos[near], amp[near], self.shape)
         return waveform.render(idx, w, n0, n1 - n0)
+
+    def _add_tail(self, x: np.ndarray, n0: int) -> None:
+        """The late reverberation of every pulse whose tail reaches [n0, n0 + len(x))."""
+        tl = self.tail
+        if tl is None:
+            return
+        n1 = n0 + len(x)
+        lo = ((n0 - tl.start - tl.length) / self.scale - self.offset) / self.pri
+        hi = ((n1 - tl.start + waveform.HALF_TAPS) / self.scale - self.offset) / self.pri
+        k0 = max(0, int(math.floor(lo)))
+        k1 = min(self.n_pulses, int(math.ceil(hi)) + 1)
+        if k1 <= k0:
+            return
+        k = np.arange(k0, k1)
+        t = (self.offset + k * float(self.pri)) / self.fs
+        ang = self.schedule.angle_at(t, self.scene.start_angle_rad)
+        tl.add(x, n0, self._edge(k), np.mod(ang * self.K / (2 * math.pi), 1.0))
+
+    def _add_bursts(self, x: np.ndarray, n0: int) -> None:
+        """Interference bursts at the microphone overlapping [n0, n0 + len(x))."""
+        n1 = n0 + len(x)
+        for i, b in enumerate(self.bursts):
+            a, e = max(b.capture_index, n0), min(b.capture_index + b.samples, n1)
+            if a >= e:
+                continue
+            if self._burst_cache is None or self._burst_cache[0] != i:
+                self._burst_cache = (i, _device.burst_samples(self.bursts, i, self.burst_rms,
+                                                              self.seed, self.fs))
+            z = self._burst_cache[1]
+            x[a - n0:e - n0] += z[a - b.capture_index:e - b.capture_index]
 
     def _noise(self, n0: int, n1: int) -> np.ndarray:
         out = np.empty(n1 - n0)
@@ -425,6 +516,9 @@ class Simulator:
                                      rate_hz=float(rate[i]), direction=str(dirs[i]))
             if dropped:
                 r["dropped"] = True
+            if any(b.capture_index - self.pri < edges[i] < b.capture_index + b.samples
+                   for b in self.bursts):
+                r["burst"] = True        # a burst overlaps this pulse's PRI
             if self.include_paths:
                 cols = np.nonzero(v[i])[0]
                 r["paths"] = [dict(kind=str(self._kind[j]), delay=round(float(d[i, j]), 6),
@@ -447,8 +541,12 @@ class Simulator:
             n0 = self._capture_index(m0)
             n1 = self._capture_index(m1) if m1 < self.n_out else self.n_capture
             x = self._render_capture(n0, n1)
+            self._add_tail(x, n0)
             if self.sigma > 0:
                 x += self.sigma * self._noise(n0, n1)
+            self._add_bursts(x, n0)
+            if self.nz.capture_gain_db or self.nz.agc_db:
+                x *= _device.agc_gain(self.nz, self.seed, n0, n1 - n0, self.fs)
             keep = np.ones(n1 - n0, bool)
             for dr in self.dropouts:
                 a, e = max(dr.capture_index, n0), min(dr.capture_index + dr.samples, n1)
@@ -464,6 +562,8 @@ class Simulator:
                 over = np.abs(x) > self.clip
                 self.clipped += int(np.count_nonzero(over))
                 np.clip(x, -self.clip, self.clip, out=x)
+            x, over = _device.convert(x, self.nz.bits)
+            self.clipped += over
             # pulses whose edge lies in [n0, n1)
             kend = kdone
             while kend < self.n_pulses and self._edge(kend) < n1:

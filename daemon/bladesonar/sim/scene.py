@@ -25,6 +25,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import ConfigError
+from . import nuisances as _nuisances
 from . import schedule as _schedule
 
 #: K used by ``geometry`` when neither the scene nor a config gives one (config default).
@@ -33,7 +34,8 @@ DEFAULT_BLADES = 4
 MIN_WALL_CLEARANCE_M = 1e-3
 
 _KEYS = {
-    "": ("name", "room", "sensor", "fan", "coupling_gain", "schedule", "description"),
+    "": ("name", "room", "sensor", "fan", "coupling_gain", "schedule", "description",
+         "nuisances"),
     "room.": ("vertices", "reflection"),
     "fan.": ("centre", "center", "blades", "blade_length_m", "hub_radius_m",
              "start_angle_deg", "reflectivity"),
@@ -68,6 +70,8 @@ class Scene:
     """Optional rotation schedule DIR:RATE_HZ:SECONDS,... stated by the scene file."""
     name: str = "scene"
     source: str | None = None
+    nuisances: "_nuisances.Nuisances | None" = None
+    """What a real device and room add (sim/nuisances.py), stated by the scene file."""
 
     # ------------------------------------------------------------------ derived arrays
     @property
@@ -119,7 +123,8 @@ class Scene:
                     blade_length_m=self.blade_length_m, hub_radius_m=self.hub_radius_m,
                     start_angle_rad=self.start_angle_rad,
                     blade_reflectivity=self.blade_reflectivity,
-                    coupling_gain=self.coupling_gain, schedule=self.schedule)
+                    coupling_gain=self.coupling_gain, schedule=self.schedule,
+                    nuisances=None if self.nuisances is None else self.nuisances.active)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -198,6 +203,9 @@ class Scene:
             fail("fan.blades", blades, "must be an integer from 1 to 16 (or left out to use "
                  "the config's scene.blades)")
 
+        nz = None
+        if data.get("nuisances") is not None:
+            nz = _nuisances.parse(data["nuisances"], source=source, lines=lines)
         sched = data.get("schedule")
         if sched is not None:
             sched = _schedule.parse(sched, key="schedule", source=source).to_string()
@@ -219,7 +227,7 @@ class Scene:
                    sensor=(float(S[0]), float(S[1])), fan_centre=(float(C[0]), float(C[1])),
                    blade_length_m=length, hub_radius_m=hub, blades=blades,
                    start_angle_rad=math.radians(start), blade_reflectivity=rho_b,
-                   coupling_gain=gain, schedule=sched,
+                   coupling_gain=gain, schedule=sched, nuisances=nz,
                    name=str(data.get("name", "scene")), source=source)
 
 
