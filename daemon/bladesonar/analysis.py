@@ -24,11 +24,12 @@ import numpy as np
 
 from .config import Config
 from .dsp import aliasing
+from .dsp import device as dev
 from .dsp import fingerprint as fp
 from .dsp.decide import DecideSettings, Decision, MotionMeter, decide
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
 from .dsp.period import estimate_period
-from .dsp.pulses import OK, STATUS_NAMES, WARMUP, AlignedPulses, PulseAligner, \
+from .dsp.pulses import BURST, OK, STATUS_NAMES, WARMUP, AlignedPulses, PulseAligner, \
     RecordingCheck, align, check_recording, count_dropped, too_few_pulses
 from .dsp.rangedoppler import range_doppler
 from .dsp.tracking import Tracker, TrackerSettings
@@ -78,7 +79,7 @@ class Reference:
         m = self.meta
         keys = ("blade_rate_hz", "rate_hz", "rpm", "periods_folded", "quality", "gate_m",
                 "pulses", "dropped_pulses", "direction", "phase_bins", "cycles_per_pulse",
-                "target_range_m", "line_snr", "features", "warnings")
+                "target_range_m", "line_snr", "features", "device", "warnings")
         return {k: m[k] for k in keys if k in m}
 
 
@@ -166,7 +167,15 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     warnings = check_recording(x, pri=pri, min_pulses=a.min_pulses,
                                max_clip_fraction=a.max_clip_fraction, sample_rate=fs)
     full_gate = Gate(0, max_gate_stop(pri), float(fs), cfg.scene.speed_of_sound)
-    full = align(x, pri, full_gate)
+    aligner = PulseAligner(pri, full_gate)
+    full = AlignedPulses.concat([aligner.push(x), aligner.flush()], full_gate.length)
+    v = full.valid
+    if v.sum() < a.min_pulses:
+        raise too_few_pulses(int(v.sum()), len(full), len(x), pri=pri, sample_rate=fs,
+                             min_pulses=a.min_pulses,
+                             dropped=count_dropped(full.status, ended=True))
+    device, warm = _device_figures(full, aligner, prf, fs)
+    warnings.extend(device.pop("warnings"))
     v = full.valid
     if v.sum() < a.min_pulses:
         raise too_few_pulses(int(v.sum()), len(full), len(x), pri=pri, sample_rate=fs,
@@ -220,9 +229,82 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
         "dropped_pulses": dropped,
         "target_range_m": None if target is None else round(float(target), 4),
         "features": a.features, "min_bin_weight": round(float(weight.min()), 3),
+        "device": device, "warmup_pulses": warm,
         "warnings": warnings,
     }
     return Reference(table=table, mean_pulse=mean_pulse, meta=meta)
+
+
+def _device_figures(full: AlignedPulses, aligner: PulseAligner, prf: float, fs: float
+                    ) -> tuple[dict[str, Any], int]:
+    """What the reference recording shows of the device and room (dsp/device.py), and the
+    pulses a pulse train's start needs before its windows hold the whole reverberation.
+
+    Marks in ``full.status`` the build-up pulses (WARMUP) and the bursts (BURST), so the
+    reference is made of the steady, quiet pulses only.
+    """
+    warnings: list[str] = []
+    v = full.valid
+    x = full.pulses
+    idx = np.nonzero(v)[0]
+    late = idx[len(idx) // 2:]
+    mean = x[late].mean(axis=0)
+    # noise of one pulse from lag-1 differences over the late half of the window, where
+    # the fan's echoes are weakest (an upper bound: the fan adds to it)
+    L = x.shape[1]
+    pair = late[1:][np.diff(late) == 1]
+    if len(pair):
+        d = x[pair, L // 2:] - x[pair - 1, L // 2:]
+        noise_var = 0.5 * float(np.mean(d * d))
+    else:
+        noise_var = float(np.var(x[late, L // 2:]))
+    zone = aligner.coupling_zone
+    # the room's tail: from the pulse train's start when the recording shows it (exact),
+    # else from the static part's decay along the window (rough)
+    ok = full.status == OK
+    n_lead = min(len(x), 400)
+    lead = np.where(ok[:n_lead, None], x[:n_lead, zone:], np.nan)
+    rt60, building = dev.tail_from_buildup(lead, mean[zone:], aligner.pri, fs)
+    how = "build-up"
+    if rt60 <= 0:
+        rt60 = dev.tail_rt60(mean, noise_var / max(len(late), 1), fs, start=zone)
+        how = "decay"
+    warm = max(dev.buildup_pulses(rt60, prf) if how == "build-up" else 0, building)
+    first = int(full.index[0]) if len(full) else 0
+    full.status[(full.status == OK) & (full.index < first + warm)] = WARMUP
+    # bursts: a robust level of each pulse's residual (the median of its squares; the
+    # fan's echoes are a few samples, a burst covers the window)
+    v = full.valid
+    res = x[v] - mean
+    level = np.median(res * res, axis=1)
+    burst = dev.burst_mask(level)
+    full.status[np.nonzero(v)[0][burst]] = BURST
+    v = full.valid
+    gains = dev.projection_gains(x[v], mean)
+    wander = dev.gain_wander_db(gains, prf)
+    measured = max(aligner.edges_measured, 1)
+    clipped = aligner.coupling_clipped / measured
+    figures = {
+        "clipped_coupling": round(clipped, 4),
+        "coupling_zone_samples": zone,
+        "gain_wander_db": round(wander, 2) if math.isfinite(wander) else None,
+        "burst_pulses": int(burst.sum()),
+        "rt60_s": round(rt60, 3),
+        "tail_pris": round(rt60 * prf, 1),
+        "tail_from": how if rt60 > 0 else None,
+        "warnings": warnings,
+    }
+    if clipped > 0:
+        warnings.append(f"the direct coupling is clipped in {100 * clipped:.0f}% of the pulses "
+                        "(handled: those edges follow the transmit schedule); a lower "
+                        "playback volume or capture gain keeps more headroom")
+    if wander > 3.0:
+        warnings.append(f"the capture gain wanders by {wander:.1f} dB (an AGC?): turn the "
+                        "microphone's automatic gain control off where the driver allows it")
+    if burst.sum():
+        warnings.append(f"{int(burst.sum())} pulses skipped for bursts of interference "
+                        "(speech, clatter); record the reference in a quiet room")
+    return figures, warm
 
 
 # --------------------------------------------------------------------------------------
@@ -269,6 +351,14 @@ def transition_settings(cfg: Config) -> TransitionSettings:
     return TransitionSettings(rate_floor_hz=t.rate_floor_hz, confirm_s=t.confirm_s)
 
 
+def new_aligner(cfg: Config, ref: Reference) -> PulseAligner:
+    """The aligner for analysing against ``ref``: its gate, and the pulses a pulse train's
+    start needs before the room's reverberation has built up (measured in the reference)
+    marked as warm-up."""
+    warm = int(ref.meta.get("warmup_pulses", 0) or 0)
+    return PulseAligner(cfg.waveform.pri_samples, ref.gate, warmup=max(1, warm + 1))
+
+
 class StaticRemover:
     """Running mean pulse (the static room) subtracted from each pulse, state in and out.
 
@@ -295,6 +385,24 @@ class StaticRemover:
             np.subtract(x[i], mean, out=res[i])
             mean += a * res[i]
         return res
+
+    def skip_bursts(self, pulses: np.ndarray, gate: dev.BurstGate
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """Like calling the remover, but a pulse the burst gate flags (its residual's
+        median square far above the recent pulses') is not averaged into the static
+        estimate. Returns (residuals, burst mask)."""
+        x = np.asarray(pulses, dtype=np.float64)
+        a, mean = self.alpha, self.mean
+        res = np.empty_like(x)
+        burst = np.zeros(len(x), bool)
+        for i in range(len(x)):
+            np.subtract(x[i], mean, out=res[i])
+            r = res[i]
+            if gate(float(np.median(r * r))):
+                burst[i] = True
+                continue
+            mean += a * r
+        return res, burst
 
 
 @dataclass
@@ -327,6 +435,7 @@ class PulseAnalyzer:
     _pending: list = field(default_factory=list)
     _since: int = 0
     decided: Decision | None = None               # the last decision (before the machine)
+    bursts: dev.BurstGate = field(default_factory=dev.BurstGate)   # pulses skipped: .bursts
 
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
@@ -368,7 +477,14 @@ class PulseAnalyzer:
         if not v.any():
             return []
         xv = block.pulses[v]
-        res = self.static(xv)
+        res, burst = self.static.skip_bursts(xv, self.bursts)
+        if burst.any():
+            # swamped by interference: skipped (and counted by the gate), like a drop-out
+            v = v.copy()
+            v[np.nonzero(v)[0][burst]] = False
+            xv, res = xv[~burst], res[~burst]
+            if not v.any():
+                return []
         feats = fp.envelope_features(res, np.zeros(res.shape[1]), kind=a.features,
                                      smooth=a.envelope_smooth)
         m = fp.match(feats, self.ref.table, self._table_norms)
@@ -537,6 +653,10 @@ class WarmStart:
 
     def _start(self) -> list[dict]:
         first = np.concatenate([h.pulses[h.valid] for h in self._held])[:self.warmup]
+        if len(first) > 8:
+            # bursts of interference must not prime the static estimate
+            res = first - np.median(first, axis=0)
+            first = first[~dev.burst_mask(np.median(res * res, axis=1))]
         self.analyzer = new_analyzer(self.cfg, self.ref, first)
         rows: list[dict] = []
         for h in self._held:
@@ -588,7 +708,7 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
         warnings = chk.finish()
     # stream the recording through the same stages the daemon runs, in blocks of pulses
     # (bounded memory); the static estimate is primed from the first window of pulses
-    aligner = PulseAligner(pri, ref.gate)
+    aligner = new_aligner(cfg, ref)
     stream = WarmStart(cfg, ref, rows=track)
     rows: list[dict] = []
     n_pulses = n_valid = 0

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .analysis import PulseAnalyzer, Reference, WarmStart
+from .analysis import PulseAnalyzer, Reference, WarmStart, new_aligner
 from .config import Config
 from .dsp.pulses import DROPOUT, OK, AlignedPulses, PulseAligner
 from .transitions import Event
@@ -29,7 +29,7 @@ class LiveAnalyzer:
         self.cfg, self.ref = cfg, ref
         self.reference_id = reference_id
         self.pri = cfg.waveform.pri_samples
-        self.aligner = PulseAligner(self.pri, ref.gate)
+        self.aligner = new_aligner(cfg, ref)
         self.stream = WarmStart(cfg, ref)
         self._next_sample: int | None = None
         self._pushed = 0                       # samples given to the aligner so far

@@ -72,8 +72,9 @@ CLIPPED = 4     # samples at full scale inside the gated window
 SILENT = 5      # digital silence over the whole gated window
 WARMUP = 6      # first pulses of a stream: no predecessor, so the reverberation that the
                 # previous pulse leaves in every later window (range ambiguity) is missing
+BURST = 7       # swamped by a burst of interference (speech, clatter): skipped, counted apart
 STATUS_NAMES = {OK: "ok", DROPOUT: "dropout", MISSING: "missing", NAN: "nan",
-                CLIPPED: "clipped", SILENT: "silent", WARMUP: "warmup"}
+                CLIPPED: "clipped", SILENT: "silent", WARMUP: "warmup", BURST: "burst"}
 
 
 def _kernel(t: np.ndarray) -> np.ndarray:
@@ -543,12 +544,13 @@ def end_of_stream(status: np.ndarray) -> int:
 
 
 def count_dropped(status: np.ndarray, *, ended: bool = False) -> int:
-    """Pulses dropped or corrupt (not OK, not warm-up); with ``ended`` the end of a
-    finished stream (:func:`end_of_stream`) is not counted."""
+    """Pulses dropped or corrupt (not OK, not warm-up, not a burst: those are counted
+    apart); with ``ended`` the end of a finished stream (:func:`end_of_stream`) is not
+    counted."""
     s = np.asarray(status)
     if ended:
         s = s[:len(s) - end_of_stream(s)]
-    return int(np.count_nonzero((s != OK) & (s != WARMUP)))
+    return int(np.count_nonzero((s != OK) & (s != WARMUP) & (s != BURST)))
 
 
 def align(x: np.ndarray, pri: int, gate: Gate, **kwargs) -> AlignedPulses:

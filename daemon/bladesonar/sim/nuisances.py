@@ -45,9 +45,9 @@ KEYS: dict[str, tuple[float, float, float, str]] = {
                  "range gate), dB"),
     "burst_s": (0.3, 0.01, 10.0, "length of one burst, s"),
     "rt60_s": (0.0, 0.0, 3.0, "late reverberation: 60 dB decay time, s (0: none)"),
-    "reverb_db": (-6.0, -60.0, 20.0, "late tail's level where it begins, relative to the "
-                  "median first-order wall echo, dB"),
-    "reverb_fan_share": (0.1, 0.0, 1.0, "share of the tail's energy that comes by the fan "
+    "reverb_db": (0.0, -60.0, 30.0, "late tail's whole energy relative to the first-order "
+                  "wall echoes' together, dB"),
+    "reverb_fan_share": (0.02, 0.0, 1.0, "share of the tail's energy that comes by the fan "
                          "and changes with its angle"),
     "speed_of_sound": (0.0, 0.0, 2000.0, "the room's speed of sound now, m/s (0: the "
                        "config's scene.speed_of_sound; 343 + 0.6 per degree C)"),
@@ -77,8 +77,8 @@ class Nuisances:
     burst_db: float = 10.0
     burst_s: float = 0.3
     rt60_s: float = 0.0
-    reverb_db: float = -6.0
-    reverb_fan_share: float = 0.1
+    reverb_db: float = 0.0
+    reverb_fan_share: float = 0.02
     speed_of_sound: float = 0.0
     walker_speed_m_s: float = 0.0
     walker_start_s: float = 2.0

@@ -40,6 +40,8 @@ from fixed blocks of pulses and noise from fixed, separately seeded blocks of sa
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import math
 from dataclasses import dataclass
@@ -197,20 +199,29 @@ class Simulator:
 
     def _make_tail(self) -> Tail | None:
         """The late reverberation: begins at the earliest second-order echo (twice the
-        nearest wall's delay), its level relative to the median first-order wall echo."""
+        nearest wall's delay); its whole energy is ``reverb_db`` relative to the
+        first-order wall echoes' (the higher orders together: about their energy in a
+        lively room)."""
         if self.nz.rt60_s <= 0:
             return None
         p = geometry.paths(self.scene, 0.0, wall_bounces=False)
         walls = p.kind == "wall"
         if walls.any():
             d = p.delay_samples(self.c, self.fs)[walls]
-            g = float(np.median(p.gain[walls]))
+            e_walls = float(np.sum(p.gain[walls] ** 2))
             start = 2.0 * float(d.min())
         else:
-            g, start = 0.1, 0.02 * self.fs
-        level = self.amplitude * g * 10 ** (self.nz.reverb_db / 20)
+            e_walls, start = 0.01, 0.02 * self.fs
+        # mean square envelope 10^(-6 t / RT60) summed over the tail's samples
+        samples = self.nz.rt60_s * self.fs / (6.0 * math.log(10.0))
+        level = self.amplitude * math.sqrt(e_walls / samples) * 10 ** (self.nz.reverb_db / 20)
+        # the tail belongs to the room, not to the run: the same scene rings the same way
+        # in a reference and in a later probe (seeded by the geometry, not by --seed)
+        room = json.dumps([self.scene.vertices, self.scene.wall_reflection, self.scene.sensor,
+                           self.scene.fan_centre]).encode()
+        room_seed = int.from_bytes(hashlib.sha256(room).digest()[:4], "little")
         return Tail(self.nz.rt60_s, start, level, self.nz.reverb_fan_share, self.shape,
-                    self.fs, self.seed)
+                    self.fs, room_seed)
     # ------------------------------------------------------------------ set-up
     def _warn_stiff(self) -> None:
         top = self.schedule.max_abs_hz

@@ -48,7 +48,7 @@ class Tail:
     fan_share : share of the energy in the fan's part.
     shape : the transmit pulse shape (speaker response included).
     fs : sample rate, Hz.
-    seed : run seed.
+    seed : the room's seed (the same room rings the same way in every run).
     """
 
     def __init__(self, rt60_s: float, start: float, level: float, fan_share: float,
