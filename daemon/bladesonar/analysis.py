@@ -15,6 +15,7 @@ daemon runs the same stages pulse by pulse through :class:`PulseAnalyzer`.
 from __future__ import annotations
 
 import itertools
+from collections import deque
 import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -280,8 +281,14 @@ def _device_figures(full: AlignedPulses, aligner: PulseAligner, prf: float, fs: 
     burst = dev.burst_mask(level)
     full.status[np.nonzero(v)[0][burst]] = BURST
     v = full.valid
-    gains = dev.projection_gains(x[v], mean)
+    gains = dev.projection_gains(x[v, zone:], mean[zone:])
     wander = dev.gain_wander_db(gains, prf)
+    # every pulse brought to the mean's gain (an AGC's wander would otherwise leave a share
+    # of the strong static echoes in every residual); the analysis does the same
+    # (StaticRemover.skip_bursts)
+    rows = np.nonzero(v)[0]
+    good = np.isfinite(gains) & (gains > 0)
+    x[rows[good]] /= gains[good][:, None]
     measured = max(aligner.edges_measured, 1)
     clipped = aligner.coupling_clipped / measured
     figures = {
@@ -387,22 +394,29 @@ class StaticRemover:
         return res
 
     def skip_bursts(self, pulses: np.ndarray, gate: dev.BurstGate
-                    ) -> tuple[np.ndarray, np.ndarray]:
-        """Like calling the remover, but a pulse the burst gate flags (its residual's
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Like calling the remover, but each pulse is first scaled to the static
+        estimate's gain (least squares), and a pulse the burst gate flags (its residual's
         median square far above the recent pulses') is not averaged into the static
-        estimate. Returns (residuals, burst mask)."""
-        x = np.asarray(pulses, dtype=np.float64)
+        estimate. Returns (scaled pulses, residuals, burst mask)."""
+        x = np.array(pulses, dtype=np.float64)
         a, mean = self.alpha, self.mean
         res = np.empty_like(x)
         burst = np.zeros(len(x), bool)
         for i in range(len(x)):
+            # brought to the static estimate's gain first (an AGC's slow wander), as the
+            # reference's pulses were
+            mm = float(mean @ mean)
+            g = float(x[i] @ mean) / mm if mm > 0 else 1.0
+            if g > 0:
+                x[i] /= g
             np.subtract(x[i], mean, out=res[i])
             r = res[i]
             if gate(float(np.median(r * r))):
                 burst[i] = True
                 continue
             mean += a * r
-        return res, burst
+        return x, res, burst
 
 
 @dataclass
@@ -436,6 +450,10 @@ class PulseAnalyzer:
     _since: int = 0
     decided: Decision | None = None               # the last decision (before the machine)
     bursts: dev.BurstGate = field(default_factory=dev.BurstGate)   # pulses skipped: .bursts
+    #: the locked track's unwrapped phase over the last window, (pulse, cycles), and the
+    #: track it belongs to (a new lock or a move to another line starts it afresh)
+    _unwrapped: deque = field(default_factory=deque)
+    _track_id: tuple = ()
 
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
@@ -476,8 +494,7 @@ class PulseAnalyzer:
         self.dropped += int(np.count_nonzero((block.status != OK) & (block.status != WARMUP)))
         if not v.any():
             return []
-        xv = block.pulses[v]
-        res, burst = self.static.skip_bursts(xv, self.bursts)
+        xv, res, burst = self.static.skip_bursts(block.pulses[v], self.bursts)
         if burst.any():
             # swamped by interference: skipped (and counted by the gate), like a drop-out
             v = v.copy()
@@ -497,6 +514,7 @@ class PulseAnalyzer:
         every = self.cfg.tracking.decide_every
         for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v])):
             st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
+            self._follow_phase(int(k), st)
             self._pending.append((feats[i], still_feats[i]))
             self.aliases.push(int(k), dist[i])
             self._check_aliases()
@@ -533,6 +551,36 @@ class PulseAnalyzer:
                 row["event"] = fired[-1].kind if fired else None
                 out.append(row)
         return out
+
+    def _follow_phase(self, k: int, st) -> None:
+        """Unwrap the track's phase pulse by pulse (the window's mean rate, below)."""
+        tr = self.tracker
+        tid = (tr.start_k, tr.relocks, tr.rechecks)
+        if not st.locked or tid != self._track_id:
+            self._unwrapped.clear()
+            self._track_id = tid
+            if not st.locked:
+                return
+        h = self._unwrapped
+        if h:
+            k0, u0 = h[-1]
+            step = float(st.rate) * (k - k0) if math.isfinite(st.rate) else 0.0
+            d = st.phase - (u0 % 1.0) - step
+            h.append((k, u0 + step + d - round(d)))
+            while h and h[0][0] <= k - self.window:
+                h.popleft()
+        else:
+            h.append((k, float(st.phase)))
+
+    def window_rate(self) -> float | None:
+        """The mean phase rate over the last window (cycles per pulse): the unwrapped
+        track's advance over it, from the window's start to its end. A fan whose speed
+        wobbles reads its mean here, where the tracked rate is the latest one and lags a
+        wobble; None until the track spans half a window."""
+        h = self._unwrapped
+        if len(h) < 2 or h[-1][0] - h[0][0] < self.window // 2:
+            return None
+        return (h[-1][1] - h[0][1]) / (h[-1][0] - h[0][0])
 
     def take_events(self) -> list[Event]:
         """Events confirmed since the last call (the daemon publishes them)."""
@@ -599,19 +647,28 @@ class PulseAnalyzer:
         prf = self.cfg.prf_hz
         accel, _ = self.tracker.accel
         still, _ = self.still.statistic()
-        return decide(still=still, accel=accel * prf,
-                      changing_odds=self.tracker.follower_weight,
-                      rate=rate, rate_std=sd, locked=locked,
-                      accepted=accepted,
-                      quality=float(qual.mean()) if len(qual) else 0.0,
-                      motion=motion, scene=scene,
-                      ref_cycles_per_pulse=self.ref.cycles_per_pulse,
-                      ref_rate_hz=float(self.ref.meta["rate_hz"]),
-                      ref_direction=self.ref.meta.get("direction", "unknown"),
-                      alias_gap=self.aliases.verdict.gap if locked and self.aliases.verdict
-                      else math.inf,
-                      alias_note=self.aliases.note if locked else "",
-                      settings=self._decide_settings)
+        args = dict(still=still, accel=accel * prf,
+                    changing_odds=self.tracker.follower_weight,
+                    rate=rate, rate_std=sd, locked=locked,
+                    accepted=accepted,
+                    quality=float(qual.mean()) if len(qual) else 0.0,
+                    motion=motion, scene=scene,
+                    ref_cycles_per_pulse=self.ref.cycles_per_pulse,
+                    ref_rate_hz=float(self.ref.meta["rate_hz"]),
+                    ref_direction=self.ref.meta.get("direction", "unknown"),
+                    alias_gap=self.aliases.verdict.gap if locked and self.aliases.verdict
+                    else math.inf,
+                    alias_note=self.aliases.note if locked else "",
+                    settings=self._decide_settings)
+        d = decide(**args)
+        mean = self.window_rate()
+        if d.rate_state == "settled" and d.relative_rate is not None and mean is not None \
+                and mean * rate > 0:
+            # settled: the window's mean rate (a wobble of a few per cent averages out; the
+            # tracked rate is the latest and lags it); a changing one is the follower's
+            args["rate"] = mean
+            d = decide(**args)
+        return d
 
 
 def new_analyzer(cfg: Config, ref: Reference, first: np.ndarray | None = None) -> PulseAnalyzer:
