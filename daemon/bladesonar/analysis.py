@@ -288,7 +288,8 @@ def _device_figures(full: AlignedPulses, aligner: PulseAligner, prf: float, fs: 
     # (StaticRemover.skip_bursts)
     rows = np.nonzero(v)[0]
     good = np.isfinite(gains) & (gains > 0)
-    x[rows[good]] /= gains[good][:, None]
+    if wander > dev.NORMALISE_ABOVE_DB:
+        x[rows[good]] /= gains[good][:, None]
     measured = max(aligner.edges_measured, 1)
     clipped = aligner.coupling_clipped / measured
     figures = {
@@ -320,6 +321,10 @@ def _device_figures(full: AlignedPulses, aligner: PulseAligner, prf: float, fs: 
 
 #: Pulses between checks of a poorly accepted track (PulseAnalyzer._recheck_track).
 RECHECK_EVERY = 8
+
+#: Largest difference between the mean rates of a window's two halves, as a share of the
+#: window's mean rate, for the window to read as steady (a wobble) rather than a ramp.
+TREND_SHARE = 0.02
 
 #: Acceleration noise of the rate follower: the standard deviation of its change per half
 #: second, as a share of the steepest ramp (tracking.max_ramp_hz_s). A quarter: on
@@ -377,6 +382,31 @@ class StaticRemover:
     def __init__(self, alpha: float, mean: np.ndarray) -> None:
         self.alpha = float(alpha)
         self.mean = np.asarray(mean, dtype=np.float64).copy()
+        # the pulses' gain against the static estimate, smoothed over a third of its
+        # window, and the range it has covered (the device figure gain_wander_db)
+        self._gain = math.nan
+        self._gain_n = 0
+        #: scale each pulse to the static estimate's gain (set where the reference saw the
+        #: device's gain wander: an AGC; elsewhere it would only add the fan's share of
+        #: the projection as jitter on the strong static echoes)
+        self.normalise = False
+        self.gain_lo = math.inf
+        self.gain_hi = 0.0
+
+    @property
+    def gain_wander_db(self) -> float:
+        """Peak-to-peak wander of the smoothed gain seen so far, dB (0 before it settles)."""
+        if not self.gain_hi > 0 or not math.isfinite(self.gain_lo):
+            return 0.0
+        return 20.0 * math.log10(self.gain_hi / self.gain_lo)
+
+    def _note_gain(self, g: float) -> None:
+        b = min(3.0 * self.alpha, 1.0)
+        self._gain = g if not math.isfinite(self._gain) else self._gain + b * (g - self._gain)
+        self._gain_n += 1
+        if self._gain_n * b >= 1.0:
+            self.gain_lo = min(self.gain_lo, self._gain)
+            self.gain_hi = max(self.gain_hi, self._gain)
 
     def __call__(self, pulses: np.ndarray) -> np.ndarray:
         """Residuals of a block of consecutive pulses, shape (n, L); updates the state."""
@@ -408,13 +438,15 @@ class StaticRemover:
             # reference's pulses were
             mm = float(mean @ mean)
             g = float(x[i] @ mean) / mm if mm > 0 else 1.0
-            if g > 0:
+            if g > 0 and self.normalise:
                 x[i] /= g
             np.subtract(x[i], mean, out=res[i])
             r = res[i]
             if gate(float(np.median(r * r))):
                 burst[i] = True
                 continue
+            if g > 0:
+                self._note_gain(g)
             mean += a * r
         return x, res, burst
 
@@ -578,9 +610,19 @@ class PulseAnalyzer:
         wobbles reads its mean here, where the tracked rate is the latest one and lags a
         wobble; None until the track spans half a window."""
         h = self._unwrapped
-        if len(h) < 2 or h[-1][0] - h[0][0] < self.window // 2:
+        if len(h) < 4 or h[-1][0] - h[0][0] < self.window // 2:
             return None
-        return (h[-1][1] - h[0][1]) / (h[-1][0] - h[0][0])
+        (k0, u0), (k1, u1) = h[0], h[-1]
+        km, um = h[len(h) // 2]
+        if not (k0 < km < k1):
+            return None
+        mean = (u1 - u0) / (k1 - k0)
+        # a trend is no wobble: halves whose rates differ by more than TREND_SHARE of the
+        # mean are a ramp, where the latest rate is the answer and the mean lags it
+        r1, r2 = (um - u0) / (km - k0), (u1 - um) / (k1 - km)
+        if abs(r2 - r1) > TREND_SHARE * abs(mean):
+            return None
+        return mean
 
     def take_events(self) -> list[Event]:
         """Events confirmed since the last call (the daemon publishes them)."""
@@ -676,7 +718,10 @@ def new_analyzer(cfg: Config, ref: Reference, first: np.ndarray | None = None) -
     check_compatible(ref, cfg)
     w = max(cfg.analysis.static_window_s * cfg.prf_hz, 1.0)
     mean = ref.mean_pulse if first is None or len(first) == 0 else np.mean(first, axis=0)
-    return PulseAnalyzer(cfg, ref, StaticRemover(1.0 / w, mean))
+    static = StaticRemover(1.0 / w, mean)
+    wander = ref.meta.get("device", {}).get("gain_wander_db") or 0.0
+    static.normalise = wander > dev.NORMALISE_ABOVE_DB
+    return PulseAnalyzer(cfg, ref, static)
 
 
 class WarmStart:
@@ -720,6 +765,20 @@ class WarmStart:
             rows.extend(self.analyzer.process(h, rows=self.rows))
         self._held = []
         return rows
+
+
+def device_figures(aligner: PulseAligner, an: PulseAnalyzer | None) -> dict[str, Any]:
+    """What an analysis saw of the device (analyze's summary, the daemon's stats): the
+    share of direct couplings that were clipped, the gain's wander, the pulses skipped
+    for bursts, and the room's tail as the reference measured it."""
+    dv = an.ref.meta.get("device", {}) if an is not None else {}
+    return {
+        "clipped_coupling": round(aligner.coupling_clipped / max(aligner.edges_measured, 1),
+                                  4),
+        "gain_wander_db": round(an.static.gain_wander_db, 2) if an is not None else None,
+        "burst_pulses": an.bursts.bursts if an is not None else 0,
+        "tail_pris": dv.get("tail_pris"),
+    }
 
 
 def _blocks(x: np.ndarray, size: int) -> Iterator[np.ndarray]:
@@ -806,6 +865,9 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
     d = an.decided if an.decided is not None else an.decision()
     if dropped:
         warnings.append(f"{dropped} pulses dropped or corrupt (skipped)")
+    if an.bursts.bursts:
+        warnings.append(f"{an.bursts.bursts} pulses skipped for bursts of interference "
+                        "(speech, clatter)")
     if an.aliases.last_move is not None and not any("alias" in w for w in d.warnings):
         a_, b_, k_ = an.aliases.last_move
         warnings.append(f"at pulse {k_} the track was on the alias {a_:+.3f} (relative rate) "
@@ -817,6 +879,7 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
     # the answer for the last window (a recording's own answer, from its last window_s);
     # the events along the way come from the state machine the daemon runs
     summary = d.as_dict()
+    summary["device"] = device_figures(aligner, an)
     summary.update(pulses=int(n_pulses), used_pulses=int(n_valid),
                    dropped_pulses=dropped,
                    window_s=round(min(an.window, an.seen) / cfg.prf_hz, 3),

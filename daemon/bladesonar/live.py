@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .analysis import PulseAnalyzer, Reference, WarmStart, new_aligner
+from .analysis import PulseAnalyzer, Reference, WarmStart, device_figures, new_aligner
 from .config import Config
 from .dsp.pulses import DROPOUT, OK, AlignedPulses, PulseAligner
 from .transitions import Event
@@ -111,4 +111,7 @@ class LiveAnalyzer:
             "dropped_pulses": (an.dropped if an else 0) + self.lost_pulses,
             "discontinuities": self.discontinuities,
             "clock_ppm": round(drift, 1) if math.isfinite(drift) else None,
+            # what the device shows: clipped coupling share, gain wander (dB), pulses
+            # skipped for bursts, the room's tail (PRIs) -- docs/audio.md
+            "device": device_figures(self.aligner, an),
         }

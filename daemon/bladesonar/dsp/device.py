@@ -28,6 +28,10 @@ MAX_RT60_S = 5.0
 BURST_RATIO = 8.0
 #: Pulses the running typical residual energy is the median of.
 BURST_HISTORY = 64
+#: A reference whose gain wanders by more than this (peak to peak, dB) was recorded
+#: through an AGC: its pulses, and those of every analysis against it, are scaled to the
+#: static part's gain before the static part is removed.
+NORMALISE_ABOVE_DB = 1.0
 
 
 def tail_rt60(mean_pulse: np.ndarray, noise_var: float, fs: float, start: int = 0
@@ -129,11 +133,13 @@ def tail_from_buildup(pulses: np.ndarray, mean_pulse: np.ndarray, pri: int, fs: 
     mid = float(np.median(steady))
     scatter = 1.4826 * float(np.median(np.abs(steady - mid)))
     short = p - mid
-    n = first
+    # the first usable pulse projects on itself (always "short"): the run counts from the
+    # next one, and only a run of at least two more shows a build-up
+    n = first + 1
     while n < len(p) // 2 and np.isfinite(short[n]) and short[n] > 6.0 * scatter:
         n += 1
     if n - first < 3:
-        return 0.0, n
+        return 0.0, 0
     k = np.arange(first, n, dtype=np.float64)
     slope = float(np.polyfit(k, np.log10(short[first:n]), 1)[0])   # log10 q per PRI
     if slope >= 0:

@@ -378,6 +378,7 @@ class Service:
             "reconnects": pub.get("reconnects", 0),
             "dropped_events": pub.get("dropped_events", 0),
             "clock_ppm": an.get("clock_ppm"),
+            "device": an.get("device"),      # clipped coupling, gain wander, bursts, tail
             "audio_restarts": self.counters.audio_restarts,
             "latency_ms": ({"median": round(1e3 * statistics.median(lat), 1),
                             "max": round(1e3 * max(lat), 1), "n": len(lat)} if lat else None),
