@@ -26,6 +26,7 @@ import numpy as np
 from .config import Config
 from .dsp import aliasing
 from .dsp import device as dev
+from .dsp import rangescale
 from .dsp import fingerprint as fp
 from .dsp.decide import DecideSettings, Decision, MotionMeter, decide
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
@@ -326,6 +327,15 @@ RECHECK_EVERY = 8
 #: window's mean rate, for the window to read as steady (a wobble) rather than a ramp.
 TREND_SHARE = 0.02
 
+#: Largest range scale (c now / c at the reference) followed by rescaling: beyond it
+#: (about 17 degrees C) the reference no longer fits and the answer is unknown.
+SCALE_LIMIT = 0.03
+#: Least envelope correlation between the reference's static room and now's for the
+#: range scale to be trusted (below it the room itself has changed).
+SCALE_MIN_CORR = 0.5
+#: Pulses between re-estimates of the range scale (the room warms up over hours).
+SCALE_EVERY = 1024
+
 #: Acceleration noise of the rate follower: the standard deviation of its change per half
 #: second, as a share of the steepest ramp (tracking.max_ramp_hz_s). A quarter: on
 #: simulated ramps of 0.03-0.1 Hz/s at 10 dB the 95th percentile rate error fell from
@@ -486,6 +496,12 @@ class PulseAnalyzer:
     #: track it belongs to (a new lock or a move to another line starts it afresh)
     _unwrapped: deque = field(default_factory=deque)
     _track_id: tuple = ()
+    #: range scale c_now / c_ref (dsp/rangescale.py): its estimate, the correlation it
+    #: rests on, and the rescaler of features when it is used
+    scale: float = 1.0
+    scale_corr: float = 1.0
+    _rescale: rangescale.Rescaler | None = None
+    _scale_due: int = 0
 
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
@@ -536,6 +552,11 @@ class PulseAnalyzer:
                 return []
         feats = fp.envelope_features(res, np.zeros(res.shape[1]), kind=a.features,
                                      smooth=a.envelope_smooth)
+        self._scale_due -= len(xv)
+        if self._scale_due <= 0:
+            self.check_scale(self.static.mean)
+        if self._rescale is not None:
+            feats = self._rescale(feats)
         m = fp.match(feats, self.ref.table, self._table_norms)
         dist = aliasing.distances(feats, self.aliases.fine)
         still_feats = fp.envelope_features(self.slow(xv), np.zeros(res.shape[1]),
@@ -583,6 +604,27 @@ class PulseAnalyzer:
                 row["event"] = fired[-1].kind if fired else None
                 out.append(row)
         return out
+
+    def check_scale(self, static_mean: np.ndarray) -> None:
+        """(Re-)estimate the range scale against the reference's static room; features are
+        rescaled while it is off 1 but within SCALE_LIMIT."""
+        g = self.ref.gate
+        s, corr = rangescale.estimate_scale(self.ref.mean_pulse, static_mean, g.start)
+        self.scale, self.scale_corr = s, corr
+        self._scale_due = SCALE_EVERY
+        r = rangescale.Rescaler(s, g.start, g.length)
+        self._rescale = r if r.active and corr >= SCALE_MIN_CORR and \
+            rangescale.within(s, SCALE_LIMIT) else None
+
+    @property
+    def scale_misfit(self) -> str:
+        """Why the reference no longer fits the room ('' while it does)."""
+        if self.scale_corr >= SCALE_MIN_CORR and not rangescale.within(self.scale, SCALE_LIMIT):
+            dT = rangescale.degrees(self.scale, self.ref.gate.c)
+            return (f"the room's echoes have moved by {100 * (self.scale - 1):+.1f} % "
+                    f"(sound {abs(dT):.0f} degrees C {'warmer' if dT > 0 else 'colder'} than "
+                    "at the reference, or the room changed): record a new reference")
+        return ""
 
     def _follow_phase(self, k: int, st) -> None:
         """Unwrap the track's phase pulse by pulse (the window's mean rate, below)."""
@@ -710,6 +752,16 @@ class PulseAnalyzer:
             # tracked rate is the latest and lags it); a changing one is the follower's
             args["rate"] = mean
             d = decide(**args)
+        misfit = self.scale_misfit
+        if misfit and d.direction in ("same", "reversed"):
+            return Decision("unknown", None, d.relative_rate, d.rate_hz, d.rpm,
+                            min(d.confidence, self._decide_settings.min_confidence) * 0.5,
+                            misfit, d.warnings)
+        if self._rescale is not None and not any("rescaled" in w for w in d.warnings):
+            d.warnings.append(
+                f"the room's echoes moved by {100 * (self.scale - 1):+.2f} % (about "
+                f"{rangescale.degrees(self.scale, self.ref.gate.c):+.0f} degrees C since the "
+                "reference): ranges rescaled to the reference's")
         return d
 
 
@@ -778,6 +830,7 @@ def device_figures(aligner: PulseAligner, an: PulseAnalyzer | None) -> dict[str,
         "gain_wander_db": round(an.static.gain_wander_db, 2) if an is not None else None,
         "burst_pulses": an.bursts.bursts if an is not None else 0,
         "tail_pris": dv.get("tail_pris"),
+        "range_scale": round(an.scale, 5) if an is not None else None,
     }
 
 
