@@ -51,8 +51,9 @@ _EDGE_GRID = 1.0 / 32.0
 #: Gains of the schedule loop that times a clipped coupling: the edge moves by CLIP_ALPHA
 #: and the PRI by CLIP_BETA of the measurement's distance from the prediction (a
 #: critically damped alpha-beta pair: BETA = ALPHA^2 / (2 - ALPHA)); the measurement's
-#: error, up to a few tenths of a sample, is averaged over some 20 pulses.
-CLIP_ALPHA = 0.1
+#: error, a tenth of a sample or two, is averaged over some 6 pulses, and a clock 100 ppm
+#: off is followed within a few pulses.
+CLIP_ALPHA = 0.3
 CLIP_BETA = CLIP_ALPHA ** 2 / (2.0 - CLIP_ALPHA)
 #: Samples past a clipped coupling's last clipped sample that still belong to it: the
 #: fractional-shift kernel spreads the plateau's corners this far.
@@ -60,8 +61,9 @@ COUPLING_GUARD = 16
 #: Samples before and after the coarse edge that a clipped coupling is matched over.
 TEMPLATE_BEFORE = 16
 TEMPLATE_AFTER = 112
-#: Correlation coefficient below which a clipped coupling does not match the first one.
-TEMPLATE_MIN_CORR = 0.7
+#: Correlation coefficient below which a clipped coupling does not match the first one (a
+#: full-band coupling half a sample off the first one's grid correlates only about 0.6).
+TEMPLATE_MIN_CORR = 0.4
 
 # Pulse status codes ------------------------------------------------------------------
 OK = 0
@@ -106,6 +108,35 @@ def fractional_taps(frac: np.ndarray) -> np.ndarray:
 
 _GRID = np.arange(-1.0, 1.0 + _EDGE_GRID / 2, _EDGE_GRID)
 _GRID_W = _kernel(_GRID[:, None] - np.arange(-KERNEL_HALF, KERNEL_HALF + 1)[None, :])
+
+
+def _crossings(x: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """Steep zero crossings of a clipped waveform: (sample before each, sub-sample
+    position by linear interpolation). Steep: the two samples differ by over the level."""
+    a, b = x[:-1], x[1:]
+    j = np.nonzero((a * b < 0) & (np.abs(a - b) > level))[0]
+    return j, j + a[j] / (a[j] - b[j])
+
+
+def _crossing_offset(template: np.ndarray, seg: np.ndarray, level: float) -> float | None:
+    """Sub-sample offset of ``seg`` against ``template`` (already matched to the sample)
+    from the clipped plateaus' edges: the mean shift of the steep zero crossings they
+    share (within a sample); None when fewer than two are shared."""
+    jt, ct = _crossings(template, level)
+    js, cs = _crossings(seg, level)
+    if len(jt) < 2 or len(js) < 2:
+        return None
+    k = np.searchsorted(js, jt)
+    shifts = []
+    for m, kk in zip(range(len(jt)), k):
+        for q in (kk - 1, kk):
+            if 0 <= q < len(js) and abs(int(js[q]) - int(jt[m])) <= 1 and \
+                    np.sign(template[jt[m]]) == np.sign(seg[js[q]]):
+                shifts.append(cs[q] - ct[m])
+                break
+    if len(shifts) < 2:
+        return None
+    return float(np.clip(np.mean(shifts), -1.0, 1.0))
 
 
 def refine_peak(seg: np.ndarray) -> tuple[float, float]:
@@ -372,10 +403,13 @@ class PulseAligner:
         e2 = float(win[i] @ win[i]) * float(T @ T)
         if not e2 > 0 or r[i] < TEMPLATE_MIN_CORR * math.sqrt(e2):
             return None
-        d = 0.0
-        if 0 < i < len(r) - 1:
-            den = r[i - 1] - 2.0 * r[i] + r[i + 1]
-            d = min(max(0.5 * (r[i - 1] - r[i + 1]) / den, -0.5), 0.5) if den < 0 else 0.0
+        d = _crossing_offset(T, win[i], self.clip_level)
+        if d is None:
+            d = 0.0
+            if 0 < i < len(r) - 1:
+                den = r[i - 1] - 2.0 * r[i] + r[i + 1]
+                d = min(max(0.5 * (r[i - 1] - r[i + 1]) / den, -0.5), 0.5) if den < 0 \
+                    else 0.0
         self._note_clip_span(win[i], 0.0)
         return c - half + i + d, self.clip_level, bool(
             np.abs(win[i]).max() >= self.clip_level)
