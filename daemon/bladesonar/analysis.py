@@ -31,7 +31,7 @@ from .dsp import fingerprint as fp
 from .dsp.decide import DecideSettings, Decision, MotionMeter, decide
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
 from .dsp.period import estimate_period
-from .dsp.pulses import BURST, OK, STATUS_NAMES, WARMUP, AlignedPulses, PulseAligner, \
+from .dsp.pulses import BURST, DROPOUT, OK, STATUS_NAMES, WARMUP, AlignedPulses, PulseAligner, \
     RecordingCheck, align, check_recording, count_dropped, too_few_pulses
 from .dsp.rangedoppler import range_doppler
 from .dsp.tracking import Tracker, TrackerSettings
@@ -261,19 +261,6 @@ def _device_figures(full: AlignedPulses, aligner: PulseAligner, prf: float, fs: 
     else:
         noise_var = float(np.var(x[late, L // 2:]))
     zone = aligner.coupling_zone
-    # the room's tail: from the pulse train's start when the recording shows it (exact),
-    # else from the static part's decay along the window (rough)
-    ok = full.status == OK
-    n_lead = min(len(x), 400)
-    lead = np.where(ok[:n_lead, None], x[:n_lead, zone:], np.nan)
-    rt60, building = dev.tail_from_buildup(lead, mean[zone:], aligner.pri, fs)
-    how = "build-up"
-    if rt60 <= 0:
-        rt60 = dev.tail_rt60(mean, noise_var / max(len(late), 1), fs, start=zone)
-        how = "decay"
-    warm = max(dev.buildup_pulses(rt60, prf) if how == "build-up" else 0, building)
-    first = int(full.index[0]) if len(full) else 0
-    full.status[(full.status == OK) & (full.index < first + warm)] = WARMUP
     # bursts: a robust level of each pulse's residual (the median of its squares; the
     # fan's echoes are a few samples, a burst covers the window)
     v = full.valid
@@ -291,6 +278,21 @@ def _device_figures(full: AlignedPulses, aligner: PulseAligner, prf: float, fs: 
     good = np.isfinite(gains) & (gains > 0)
     if wander > dev.NORMALISE_ABOVE_DB:
         x[rows[good]] /= gains[good][:, None]
+    # the room's tail: from the pulse train's start when the recording shows it (exact),
+    # else from the static part's decay along the window (rough)
+    ok = full.status == OK
+    if wander > dev.NORMALISE_ABOVE_DB:
+        mean = x[late[full.status[late] == OK]].mean(axis=0)
+    n_lead = min(len(x), 400)
+    lead = np.where(ok[:n_lead, None], x[:n_lead, zone:], np.nan)
+    rt60, building = dev.tail_from_buildup(lead, mean[zone:], aligner.pri, fs)
+    how = "build-up"
+    if rt60 <= 0:
+        rt60 = dev.tail_rt60(mean, noise_var / max(len(late), 1), fs, start=zone)
+        how = "decay"
+    warm = max(dev.buildup_pulses(rt60, prf) if how == "build-up" else 0, building)
+    first = int(full.index[0]) if len(full) else 0
+    full.status[(full.status == OK) & (full.index < first + warm)] = WARMUP
     measured = max(aligner.edges_measured, 1)
     clipped = aligner.coupling_clipped / measured
     figures = {
@@ -494,6 +496,7 @@ class PulseAnalyzer:
     bursts: dev.BurstGate = field(default_factory=dev.BurstGate)   # pulses skipped: .bursts
     #: the locked track's unwrapped phase over the last window, (pulse, cycles), and the
     #: track it belongs to (a new lock or a move to another line starts it afresh)
+    _restart_at: set = field(default_factory=set)
     _unwrapped: deque = field(default_factory=deque)
     _track_id: tuple = ()
     #: range scale c_now / c_ref (dsp/rangescale.py): its estimate, the correlation it
@@ -502,6 +505,11 @@ class PulseAnalyzer:
     scale_corr: float = 1.0
     _rescale: rangescale.Rescaler | None = None
     _scale_due: int = 0
+    #: a recording read from a file: samples lost in a drop-out leave no count of the
+    #: pulses lost (the daemon counts them from the capture position), so the track is
+    #: started afresh after one rather than carried across a jump of unknown length
+    uncertain_gaps: bool = False
+    restarts: int = 0
 
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
@@ -542,6 +550,16 @@ class PulseAnalyzer:
         self.dropped += int(np.count_nonzero((block.status != OK) & (block.status != WARMUP)))
         if not v.any():
             return []
+        if self.uncertain_gaps and (block.status == DROPOUT).any():
+            # pulses after a drop-out: the first valid one starts a new track
+            after = np.zeros(len(block), bool)
+            for j in np.nonzero(block.status == DROPOUT)[0]:
+                nxt = np.nonzero(v[j + 1:])[0]
+                if len(nxt):
+                    after[j + 1 + nxt[0]] = True
+            self._restart_at = set(block.index[after].tolist())
+        else:
+            self._restart_at = set()
         xv, res, burst = self.static.skip_bursts(block.pulses[v], self.bursts)
         if burst.any():
             # swamped by interference: skipped (and counted by the gate), like a drop-out
@@ -566,6 +584,8 @@ class PulseAnalyzer:
         fs = self.cfg.audio.sample_rate
         every = self.cfg.tracking.decide_every
         for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v])):
+            if int(k) in self._restart_at:
+                self._restart_track()
             st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
             self._follow_phase(int(k), st)
             self._pending.append((feats[i], still_feats[i]))
@@ -604,6 +624,14 @@ class PulseAnalyzer:
                 row["event"] = fired[-1].kind if fired else None
                 out.append(row)
         return out
+
+    def _restart_track(self) -> None:
+        """A new track (after a drop-out of unknown length); counts carried over."""
+        old = self.tracker
+        self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
+        self.tracker.outliers = old.outliers
+        self.restarts += 1
+        self._recent.clear()
 
     def check_scale(self, static_mean: np.ndarray) -> None:
         """(Re-)estimate the range scale against the reference's static room; features are
@@ -782,8 +810,10 @@ class WarmStart:
     the :class:`PulseAnalyzer` on them and on all that follow. The daemon's warm-up and
     the offline analysis of a file are this same code."""
 
-    def __init__(self, cfg: Config, ref: Reference, *, rows: bool = False) -> None:
+    def __init__(self, cfg: Config, ref: Reference, *, rows: bool = False,
+                 uncertain_gaps: bool = False) -> None:
         self.cfg, self.ref, self.rows = cfg, ref, rows
+        self.uncertain_gaps = uncertain_gaps
         self.warmup = int(max(round(cfg.analysis.static_window_s * cfg.prf_hz), 1))
         self.analyzer: PulseAnalyzer | None = None
         self._held: list[AlignedPulses] = []
@@ -812,6 +842,7 @@ class WarmStart:
             res = first - np.median(first, axis=0)
             first = first[~dev.burst_mask(np.median(res * res, axis=1))]
         self.analyzer = new_analyzer(self.cfg, self.ref, first)
+        self.analyzer.uncertain_gaps = self.uncertain_gaps
         rows: list[dict] = []
         for h in self._held:
             rows.extend(self.analyzer.process(h, rows=self.rows))
@@ -878,7 +909,7 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
     # stream the recording through the same stages the daemon runs, in blocks of pulses
     # (bounded memory); the static estimate is primed from the first window of pulses
     aligner = new_aligner(cfg, ref)
-    stream = WarmStart(cfg, ref, rows=track)
+    stream = WarmStart(cfg, ref, rows=track, uncertain_gaps=True)
     rows: list[dict] = []
     n_pulses = n_valid = 0
     edges: list[np.ndarray] = []

@@ -400,8 +400,11 @@ class PulseAligner:
         win = sliding_window_view(seg, len(T))
         r = win @ T
         i = int(np.argmax(r))
-        e2 = float(win[i] @ win[i]) * float(T @ T)
-        if not e2 > 0 or r[i] < TEMPLATE_MIN_CORR * math.sqrt(e2):
+        ew, et = float(win[i] @ win[i]), float(T @ T)
+        # a coupling like the first one: as loud (its energy within a factor of 2: an AGC
+        # moves it by a few dB) and of its shape
+        if not (et > 0 and 0.5 * et <= ew <= 2.0 * et) or \
+                r[i] < TEMPLATE_MIN_CORR * math.sqrt(ew * et):
             return None
         d = _crossing_offset(T, win[i], self.clip_level)
         if d is None:
@@ -454,15 +457,16 @@ class PulseAligner:
                 self._count += 1
                 self._next = pred + self._period
                 continue
-            need = int(math.floor(pred)) + half + KERNEL_HALF + 2
+            # samples a measurement reads past the prediction: the kernel, or a clipped
+            # coupling's whole template
+            reach = TEMPLATE_AFTER if self._template is not None else KERNEL_HALF + 2
+            need = int(math.floor(pred)) + half + reach
             if need > self._end:
-                if not final or int(math.floor(pred)) + self.search + KERNEL_HALF + 2 > self._end:
+                if not final or int(math.floor(pred)) + self.search + reach > self._end:
                     break
             got = self._measure(pred, self.search)
             # a clipped edge's coarse measurement is off by up to half a sample: more slack
             tol = self.shift_tol + (0.5 if self._template is not None else 0.0)
-            if got is not None:
-                self.edges_measured += 1
             if got is not None and abs(got[0] - pred) <= tol:
                 lim = self.pri * self.max_drift_ppm * 1e-6
                 err = got[0] - pred
@@ -491,6 +495,10 @@ class PulseAligner:
                     if self._pending.status == OK:
                         # whatever silenced this direct pulse may have begun in the last
                         self._pending.status = DROPOUT
+                if got is not None and self._template is not None:
+                    self.coupling_clipped += int(got[2])
+            if got is not None:
+                self.edges_measured += 1
             done.append(self._pending)
             self._pending = _Edge(e, status, self._count)
             self._count += 1

@@ -221,7 +221,7 @@ class Simulator:
                            self.scene.fan_centre]).encode()
         room_seed = int.from_bytes(hashlib.sha256(room).digest()[:4], "little")
         return Tail(self.nz.rt60_s, start, level, self.nz.reverb_fan_share, self.shape,
-                    self.fs, room_seed)
+                    self.fs, room_seed, time_scale=343.0 / self.c)
     # ------------------------------------------------------------------ set-up
     def _warn_stiff(self) -> None:
         top = self.schedule.max_abs_hz

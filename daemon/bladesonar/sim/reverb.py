@@ -49,10 +49,12 @@ class Tail:
     shape : the transmit pulse shape (speaker response included).
     fs : sample rate, Hz.
     seed : the room's seed (the same room rings the same way in every run).
+    time_scale : the arrivals' delays are paths through the room: a room where sound is
+        faster by a factor f has them at 1 / f (``343 / c``; 1 at 343 m/s).
     """
 
     def __init__(self, rt60_s: float, start: float, level: float, fan_share: float,
-                 shape: np.ndarray, fs: float, seed: int) -> None:
+                 shape: np.ndarray, fs: float, seed: int, time_scale: float = 1.0) -> None:
         self.start = int(math.floor(start))
         self.fs = float(fs)
         T = rt60_s * DEPTH_DB / 60.0
@@ -66,7 +68,7 @@ class Tail:
             env = 10 ** (-3.0 * t / rt60_s) * np.minimum(1.0, t / RISE_S)
             # mean square per sample = level^2 * env^2
             g = rng.standard_normal(n) * env * math.sqrt(T * fs / n)
-            return waveform.HALF_TAPS + t * fs, g
+            return waveform.HALF_TAPS + t * fs * time_scale, g
 
         ts, gs = arrivals(n_s)
         tf, gf = arrivals(n_f)
