@@ -506,8 +506,8 @@ class PulseAnalyzer:
     _rescale: rangescale.Rescaler | None = None
     _scale_due: int = 0
     #: a recording read from a file: samples lost in a drop-out leave no count of the
-    #: pulses lost (the daemon counts them from the capture position), so the track is
-    #: started afresh after one rather than carried across a jump of unknown length
+    #: pulses lost (the daemon counts them from the capture position), so nothing is
+    #: carried across one that a jump of unknown length would spoil (_restart_track)
     uncertain_gaps: bool = False
     restarts: int = 0
 
@@ -626,12 +626,13 @@ class PulseAnalyzer:
         return out
 
     def _restart_track(self) -> None:
-        """A new track (after a drop-out of unknown length); counts carried over."""
-        old = self.tracker
-        self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
-        self.tracker.outliers = old.outliers
+        """After a drop-out of unknown length: the track goes on (most drop-outs lose less
+        than a PRI, and then nothing changed), but a lock taken from now on uses only
+        matches after the gap (a line through matches on both sides of a hidden jump
+        of n PRIs has a wrong rate), and the window's mean rate starts afresh."""
+        self.tracker.forget_matches()
+        self._unwrapped.clear()
         self.restarts += 1
-        self._recent.clear()
 
     def check_scale(self, static_mean: np.ndarray) -> None:
         """(Re-)estimate the range scale against the reference's static room; features are

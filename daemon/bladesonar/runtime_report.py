@@ -50,6 +50,7 @@ import numpy as np
 from . import config as _config
 from .analysis import Reference, analyze, build_reference
 from .errors import BladesonarError
+from .sim.nuisances import PRESETS, Nuisances
 from .sim.render import Simulator
 from .sim.schedule import parse as parse_schedule
 from .sim.score import score_events, truth_events
@@ -79,6 +80,7 @@ class Family:
     reversal: bool = False             # a ccw -> cw run instead of windows
     jitter: float = 0.05               # each seed's rate is ratio * (1 + U(-j, j))
     transitions: bool = False          # Grid.transitions_schedule instead of windows
+    nuisances: tuple[str, ...] = ()    # sim/nuisances.py PRESETS: one row each
 
     def __post_init__(self) -> None:
         if self.reversal and self.transitions:
@@ -108,6 +110,9 @@ class Grid:
                                   for k in f.blades))
 
 
+#: The nuisance rows of the quick sweep.
+QUICK_NUISANCES = ("none", "clipped coupling (10x full scale)", "reverberation RT60 0.7 s",
+                   "all combined")
 WINDOWS = (0.25, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 20.0, 30.0)
 SNRS = (-5.0, 0.0, 5.0, 10.0, 20.0, 30.0)
 ROOMS = ("paper-room", "corner-sensor", "small-office", "narrow-hall")
@@ -131,6 +136,8 @@ def default_grid(quick: bool = False, prf_hz: float = 44100 / 1297) -> Grid:
             Family("reversal", ("paper-room",), (4,), (1.0,), (20.0,), (), 2, reversal=True),
             Family("transitions", ("paper-room",), (4,), (1.0,), (10.0, 20.0), (), 2,
                    transitions=True),
+            Family("nuisances", ("paper-room",), (4,), (0.84,), (10.0,), (5.0,), 1,
+                   nuisances=QUICK_NUISANCES),
         ), ref_seconds=12.0, reversal_at_s=6.0, reversal_seconds=12.0)
     return Grid(families=(
         Family("window_snr", ("paper-room",), (4,), (1.0,), SNRS, WINDOWS, 24),
@@ -143,6 +150,8 @@ def default_grid(quick: bool = False, prf_hz: float = 44100 / 1297) -> Grid:
         Family("reversal", ("paper-room",), (4,), (1.0,), SNRS, (), 10, reversal=True),
         Family("transitions", ("paper-room",), (4,), (1.0,), (0.0, 5.0, 10.0, 20.0, 30.0), (),
                6, transitions=True),
+        Family("nuisances", ("paper-room",), (4,), (0.84,), (0.0, 10.0), (5.0,), 6,
+               nuisances=tuple(PRESETS)),
     ))
 
 
@@ -158,6 +167,7 @@ class Job:
     reversal: bool = False
     jitter: float = 0.0
     transitions: bool = False
+    nuisance: str = ""
 
     @property
     def true_ratio(self) -> float:
@@ -180,8 +190,9 @@ def jobs(grid: Grid) -> list[Job]:
                     for i in range(f.seeds):
                         seed = grid.seed0 + i
                         sign = 1.0 if (i % 2 == 0 or f.reversal) else -1.0
-                        out.append(Job(f.name, s, k, sign * r, f.snrs_db, f.windows_s, seed,
-                                       f.reversal, f.jitter, f.transitions))
+                        for nz in f.nuisances or ("",):
+                            out.append(Job(f.name, s, k, sign * r, f.snrs_db, f.windows_s,
+                                           seed, f.reversal, f.jitter, f.transitions, nz))
     return out
 
 
@@ -265,6 +276,8 @@ def run_job(job: Job, scene, cfg: _config.Config, ref: Reference, grid: Grid
         return _run_reversal(job, sc, base, ref, grid)
     if job.transitions:
         return _run_transitions(job, sc, base, ref, grid)
+    if job.nuisance:
+        return _run_nuisance(job, sc, base, grid)
     longest = max(job.windows_s)
     clean, unit, p_fan = _render(sc, base, _schedule(rate, longest), longest, job.seed)
     truth = _truth_direction(job.ratio, rate, alias)
@@ -291,6 +304,58 @@ def run_job(job: Job, scene, cfg: _config.Config, ref: Reference, grid: Grid
                     rec.update(answer=ans, relative_rate=summary["relative_rate"],
                                confidence=summary["confidence"])
                 out.append(rec)
+    return out
+
+
+#: References of the nuisance rows, per (scene, blades, preset), kept by each worker.
+_NUISANCE_REFS: dict[tuple, Reference] = {}
+
+
+def _run_nuisance(job: Job, sc, base, grid: Grid) -> list[dict[str, Any]]:
+    """A nuisance row's trials: a reference recorded through the preset's device and room
+    (``ref_seconds`` at ``ref_rate_hz`` ccw, 10 dB), then a probe of ``max(windows) + 4`` s
+    at each SNR (30 ppm of drift) answered over its last window, scored against the
+    truth's mean rate over that window."""
+    coupling, both, probe, extra, kw = PRESETS[job.nuisance]
+    if coupling is not None:
+        sc = dataclasses.replace(sc, coupling_gain=coupling)
+    key = (job.scene, job.blades, job.nuisance)
+    ref = _NUISANCE_REFS.get(key)
+    if ref is None:
+        sim = Simulator(sc, base, f"ccw:{grid.ref_rate_hz}:{grid.ref_seconds}", snr_db=10.0,
+                        seed=10_000 + grid.seed0, include_paths=False,
+                        nuisances=Nuisances(**both))
+        x = np.concatenate([c for c, _ in sim.chunks(grid.ref_seconds)])
+        ref = _NUISANCE_REFS[key] = build_reference(x, base, "ccw")
+    rate = job.true_ratio * grid.ref_rate_hz
+    w = max(job.windows_s)
+    seconds = w + 4.0
+    cfg_w = sweep_config(base, job.blades, w)
+    out = []
+    for snr in job.snrs_db:
+        sim = Simulator(sc, base, _schedule(rate, seconds) + extra, snr_db=snr, seed=job.seed,
+                        drift_ppm=30.0, include_paths=False,
+                        nuisances=Nuisances(**{**both, **probe}), **kw)
+        parts, recs = [], []
+        for c, r in sim.chunks(seconds):
+            parts.append(c)
+            recs.extend(r)
+        summary, cpu, err = _one(np.concatenate(parts), cfg_w, ref)
+        true = [p["rate_hz"] for p in recs if p["time_s"] >= seconds - w]
+        true_ratio = float(np.mean(true)) / grid.ref_rate_hz if true else job.true_ratio
+        rec = dict(family=job.family, scene=job.scene, blades=job.blades, ratio=job.ratio,
+                   true_ratio=true_ratio, rate_hz=rate, snr_db=snr, window_s=w,
+                   seed=job.seed, segment=0, truth=_truth_direction(job.ratio, rate, 0.0),
+                   aliased=False, cpu_s=cpu, audio_s=seconds, nuisance=job.nuisance)
+        if summary is None:
+            rec.update(answer="refused", relative_rate=None, confidence=0.0, error=err)
+        else:
+            ans = summary["direction"]
+            if ans in ("same", "reversed"):
+                ans = summary["rotation"]
+            rec.update(answer=ans, relative_rate=summary["relative_rate"],
+                       confidence=summary["confidence"], device=summary.get("device"))
+        out.append(rec)
     return out
 
 
@@ -398,7 +463,7 @@ def aggregate(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
         if "window_s" not in r:
             continue
         key = (r["family"], r["scene"], r["blades"], abs(r["ratio"]), r["snr_db"],
-               r["window_s"])
+               r["window_s"], r.get("nuisance", ""))
         groups.setdefault(key, []).append(r)
     rows = []
     for key in sorted(groups):
@@ -414,7 +479,8 @@ def aggregate(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
         audio = sum(r["audio_s"] for r in g)
         rows.append(dict(
             family=key[0], scene=key[1], blades=key[2], ratio=key[3], snr_db=key[4],
-            window_s=key[5], trials=n, correct=round(correct / n, 4),
+            window_s=key[5], **({"nuisance": key[6]} if key[6] else {}),
+            trials=n, correct=round(correct / n, 4),
             correct_lower95=round(_wilson_lower(correct, n), 4),
             unknown=round(unknown / n, 4), refused=round(refused / n, 4),
             wrong=round((n - correct - unknown) / n, 4),

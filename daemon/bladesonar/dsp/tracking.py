@@ -384,6 +384,12 @@ class Tracker:
         self.rechecks += 1
         return True
 
+    def forget_matches(self) -> None:
+        """Drop the matches kept for a (re)lock and a re-check: after a gap of unknown
+        length they would join both sides of a hidden jump in one line."""
+        self._recent.clear()
+        self._accepted.clear()
+
     def relock(self, rate: float, phase: float, k: int) -> None:
         """Move a locked track to another line (rate, phase at pulse ``k``), keeping its
         covariance: an alias check found the line the matches alone could not single out."""

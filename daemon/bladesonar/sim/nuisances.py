@@ -149,3 +149,30 @@ def _value(name: str, k: str, v: Any, source: str | None, line: int | None) -> f
         raise ConfigError(name, v, f"must be a number from {lo:g} to {hi:g}{extra}: {meaning}",
                           source=source, line=line)
     return int(v) if k == "bits" else float(v)
+
+
+_SPEAKER = {"speaker_highpass_hz": 400.0, "speaker_resonance_hz": 2500.0}
+_GAPS = {"dropouts": [(66150, 3 * 1297 + 500), (154350, 3 * 1297 + 500)]}
+
+#: Named cases of ``bladesonar report``'s nuisance rows (and of the tests): (coupling gain
+#: or None for the scene's, settings of the device and room in reference and probe alike,
+#: settings of the probe only, extra schedule items of the probe, simulator keywords of the
+#: probe). Drop-outs are at 1.5 s and 3.5 s of the probe, 3 PRIs and a bit each.
+PRESETS: dict[str, tuple[float | None, dict, dict, str, dict]] = {
+    "none": (None, {}, {}, "", {}),
+    "clipped coupling (10x full scale)": (20.0, _SPEAKER, {}, "", {}),
+    "reverberation RT60 0.5 s": (None, {"rt60_s": 0.5}, {}, "", {}),
+    "reverberation RT60 0.7 s": (None, {"rt60_s": 0.7}, {}, "", {}),
+    "small speaker": (None, _SPEAKER, {}, "", {}),
+    "AGC +-3 dB": (None, {"agc_db": 3.0}, {}, "", {}),
+    "16 bits, fan echo a few LSB": (None, {"capture_gain_db": -50.0, "bits": 16}, {}, "", {}),
+    "5 degrees C warmer": (None, {}, {"speed_of_sound": 346.0}, "", {}),
+    "person walking through": (None, {}, {"walker_speed_m_s": 1.0, "walker_start_s": 1.0},
+                               "", {}),
+    "bursts 10 % at +10 dB": (None, {"burst_fraction": 0.1}, {}, "", {}),
+    "drop-outs of 3 PRIs": (None, {}, {}, "", _GAPS),
+    "speed wobble 3 %": (None, {}, {}, ",wobble:0.03:2", {}),
+    "all combined": (20.0, {"rt60_s": 0.5, "agc_db": 3.0, "burst_fraction": 0.1, **_SPEAKER},
+                     {"speed_of_sound": 346.0, "walker_speed_m_s": 1.0,
+                      "walker_start_s": 1.0}, ",wobble:0.03:2", _GAPS),
+}
