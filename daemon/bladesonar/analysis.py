@@ -699,6 +699,15 @@ class PulseAnalyzer:
             return None
         return mean
 
+    def recent_match(self) -> tuple[float, float]:
+        """(share of the last window's matches the track accepted, their mean match
+        quality); NaN before any match. The daemon's reference-fit watch reads it."""
+        if not self._recent:
+            return math.nan, math.nan
+        n = len(self._recent)
+        return (sum(1.0 for a, _ in self._recent if a) / n,
+                sum(q for _, q in self._recent) / n)
+
     def take_events(self) -> list[Event]:
         """Events confirmed since the last call (the daemon publishes them)."""
         got, self.new_events = self.new_events, []

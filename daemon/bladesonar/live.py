@@ -9,17 +9,90 @@ it gets here from a warm-up: the running static estimate is primed from the firs
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from .analysis import PulseAnalyzer, Reference, WarmStart, device_figures, new_aligner
 from .config import Config
-from .dsp.pulses import DROPOUT, OK, AlignedPulses, PulseAligner
-from .transitions import Event
+from .dsp.decide import Decision
+from .dsp.pulses import DROPOUT, OK, AlignedPulses
+from .transitions import Direction, Event
 
 #: Samples beyond the gate that the fractional-shift interpolator reads.
 _INTERP_MARGIN = 32
+
+
+def _rounded(v: float | None, digits: int) -> float | None:
+    return None if v is None or not math.isfinite(v) else round(float(v), digits)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The daemon's current answer: one window's decision (:class:`dsp.decide.Decision`,
+    as confirmed by the state machine) plus what the service adds at run time: the window
+    it covers and the reference it was matched against.
+
+    This is what the runner and the messages receive (``service/messages.py`` turns it
+    into the state payload with :meth:`fields`).
+    """
+
+    direction: Direction
+    """same, reversed, stopped or unknown (relative to the reference's direction)."""
+    rotation: str | None = None
+    """cw or ccw when the reference's direction is known and the fan turns, else None."""
+    relative_rate: float | None = None
+    rate_hz: float | None = None
+    rpm: float | None = None
+    rate_state: str | None = None
+    """settled or changing while turning, else None."""
+    rate_change_hz_s: float | None = None
+    confidence: float = 0.0
+    reason: str = ""
+    window_s: float | None = None
+    """Seconds of pulses the decision covers (shorter during the warm-up)."""
+    reference: str | None = None
+    """Id of the reference in use (first 12 hex digits of its file's sha256)."""
+    warnings: tuple[str, ...] = field(default=())
+
+    @property
+    def rotating(self) -> bool | None:
+        """True when turning either way, False when stopped, None when not known."""
+        return {Direction.SAME: True, Direction.REVERSED: True,
+                Direction.STOPPED: False}.get(self.direction)
+
+    @property
+    def known(self) -> bool:
+        return self.direction is not Direction.UNKNOWN
+
+    @classmethod
+    def from_decision(cls, d: Decision, *, window_s: float | None,
+                      reference: str | None) -> Estimate:
+        return cls(direction=Direction(d.direction), rotation=d.rotation,
+                   relative_rate=_rounded(d.relative_rate, 5), rate_hz=_rounded(d.rate_hz, 5),
+                   rpm=_rounded(d.rpm, 3), rate_state=d.rate_state,
+                   rate_change_hz_s=_rounded(d.rate_change_hz_s, 4),
+                   confidence=_rounded(d.confidence, 4) or 0.0, reason=d.reason,
+                   window_s=window_s, reference=reference, warnings=tuple(d.warnings))
+
+    @classmethod
+    def unknown(cls, reason: str, *, reference: str | None = None) -> Estimate:
+        """Nothing is known (no reference yet, no signal, re-aligning)."""
+        return cls(direction=Direction.UNKNOWN, reason=reason, reference=reference)
+
+    def fields(self) -> dict[str, Any]:
+        """The state message's estimate fields, in the published order (warnings only
+        when there are some)."""
+        out: dict[str, Any] = {
+            "direction": self.direction.value, "rotation": self.rotation,
+            "rotating": self.rotating, "rate_hz": self.rate_hz, "rpm": self.rpm,
+            "relative_rate": self.relative_rate, "rate_state": self.rate_state,
+            "rate_change_hz_s": self.rate_change_hz_s, "confidence": self.confidence,
+            "window_s": self.window_s, "reference": self.reference, "reason": self.reason}
+        if self.warnings:
+            out["warnings"] = list(self.warnings)
+        return out
 
 
 class LiveAnalyzer:
@@ -47,7 +120,7 @@ class LiveAnalyzer:
         """True once the direct-coupling edge is found and the warm-up is done."""
         return self.analyzer is not None
 
-    def push(self, samples: np.ndarray, start_sample: int | None = None) -> dict[str, Any] | None:
+    def push(self, samples: np.ndarray, start_sample: int | None = None) -> Estimate | None:
         """Add one capture block; return the current estimate, or None while warming up.
 
         ``start_sample`` is the block's position in the capture stream (counted by the
@@ -88,16 +161,27 @@ class LiveAnalyzer:
             carried = sum(n for _, n in settled)
             self._gaps = [(0, carried)] + [g for g in self._gaps if g not in settled]
 
-    def estimate(self) -> dict[str, Any] | None:
-        """The decision over the last ``daemon.window_s``, as the state message's fields."""
+    def estimate(self) -> Estimate | None:
+        """The decision over the last ``daemon.window_s`` (None while warming up)."""
         if self.analyzer is None or self.analyzer.state is None:
             return None
-        d = self.analyzer.state.as_dict()
-        d["rotating"] = {"same": True, "reversed": True, "stopped": False}.get(d["direction"])
-        d["window_s"] = round(min(self.cfg.daemon.window_s,
-                                  self.analyzer.seen / self.cfg.prf_hz), 3)
-        d["reference"] = self.reference_id
-        return d
+        window = round(min(self.cfg.daemon.window_s, self.analyzer.seen / self.cfg.prf_hz), 3)
+        return Estimate.from_decision(self.analyzer.state, window_s=window,
+                                      reference=self.reference_id)
+
+    def fit_sample(self) -> tuple[bool, float] | None:
+        """(is the fan moving, mean match quality of the last window) for the reference
+        fit watch (reference_fit.py); None while warming up. Moving is the long motion
+        meter's verdict or a turning state: a reference that no longer fits gives
+        *unknown* while the meter still sees the fan move."""
+        an = self.analyzer
+        if an is None or an.state is None:
+            return None
+        motion, _ = an.motion.statistic()
+        moving = bool(motion >= self.cfg.tracking.motion_threshold) or \
+            an.state.direction in (Direction.SAME.value, Direction.REVERSED.value)
+        _, quality = an.recent_match()
+        return moving, quality
 
     def take_events(self) -> list[Event]:
         """Motion events (started, stopped, reversed) confirmed since the last call."""
