@@ -15,10 +15,13 @@ problem and the fix. Limits: docs/reliability.md.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
 import math
+import os
+import shutil
 import zipfile
 import zlib
 from pathlib import Path
@@ -85,6 +88,14 @@ def reference_bytes(ref: Reference) -> bytes:
 
 def save_reference(ref: Reference, path: str | Path) -> Path:
     """Write ``ref`` to ``path`` atomically; returns the path."""
+    write_reference(ref, path)
+    return Path(path)
+
+
+def write_reference(ref: Reference, path: str | Path) -> str:
+    """Write ``ref`` to ``path`` atomically (temporary file, fsync, rename, folder fsync:
+    after a power loss the file is the old one or the new one, whole); returns the
+    sha256 of the bytes written (the daemon's reference id is its first 12 digits)."""
     p = Path(path)
     data = reference_bytes(ref)
     try:
@@ -94,7 +105,65 @@ def save_reference(ref: Reference, path: str | Path) -> Path:
     except OSError as exc:
         raise ReferenceFileError(f"{p}: cannot be written ({exc.strerror or exc}); choose a "
                                  "writable path with free space") from exc
-    return p
+    return hashlib.sha256(data).hexdigest()
+
+
+def previous_path(path: str | Path) -> Path:
+    """Where the reference replaced or forgotten last is kept: ``<name>.previous``."""
+    p = Path(path)
+    return p.with_name(p.name + ".previous")
+
+
+def keep_previous(path: str | Path) -> Path | None:
+    """Keep the reference at ``path`` (if any) as :func:`previous_path`, atomically and
+    without touching ``path`` itself (a hard link, else a copy, renamed into place);
+    returns where it went. To go back: ``mv reference.npz.previous reference.npz``."""
+    p = Path(path)
+    prev = previous_path(p)
+    tmp = p.with_name(f".{p.name}.previous.{os.getpid()}.tmp")
+    try:
+        try:
+            os.link(p, tmp)
+        except FileNotFoundError:
+            return None
+        except OSError:
+            shutil.copyfile(p, tmp)
+        os.replace(tmp, prev)
+        _fsync_dir(p.parent)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise ReferenceFileError(f"{prev}: cannot keep the previous reference there "
+                                 f"({exc.strerror or exc}); check the state folder's "
+                                 "permissions and free space") from exc
+    return prev
+
+
+def forget_reference(path: str | Path) -> Path | None:
+    """Remove the reference at ``path``, kept as :func:`previous_path` (returned; None if
+    there was none). Durable: the folder is fsynced."""
+    p = Path(path)
+    prev = keep_previous(p)
+    try:
+        os.unlink(p)
+    except FileNotFoundError:
+        return prev
+    except OSError as exc:
+        raise ReferenceFileError(f"{p}: cannot be removed ({exc.strerror or exc}); check "
+                                 "the state folder's permissions") from exc
+    _fsync_dir(p.parent)
+    return prev
+
+
+def _fsync_dir(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(folder if str(folder) else ".", os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 # -- reading -----------------------------------------------------------------------------
