@@ -206,6 +206,42 @@ class MqttSettings:
                                   unit="s")
     event_queue: int = opt(1000, "events kept while the broker is away (oldest dropped, "
                            "and counted, beyond this)", lo=1, hi=1_000_000)
+    device_name: str | None = opt(None, "the device's name in Home Assistant (entity names "
+                                  "follow it: 'Living room fan Rotation'); null: made from "
+                                  "device_id ('living-room-fan' -> 'Living room fan')",
+                                  nullable=True)
+    commands: bool = opt(True, "accept commands on <topic_prefix>/<device_id>/command/... "
+                         "(learn or forget the reference, set its direction) and announce "
+                         "their buttons to Home Assistant; any client of the broker can send "
+                         "them")
+
+
+@dataclass(frozen=True)
+class ReferenceSettings:
+    """How the daemon learns its reference by itself and watches that it still fits."""
+
+    auto_learn: bool = opt(True, "with no reference stored, learn one from the first steady "
+                           "rotation seen (directions are then relative until the reference "
+                           "direction is set)")
+    learn_seconds: float = opt(20.0, "length of the recording a reference is learned from "
+                               "(live, in the running daemon); at most 2^20 samples (23.8 s "
+                               "at 44.1 kHz)", lo=3.0, hi=60.0, unit="s")
+    min_quality: float = opt(0.5, "a learned reference is kept only if this share of its "
+                             "recording's energy is explained by its table (a steady fan "
+                             "gives 0.75-0.85; a fan changing speed less)", lo=0.0, hi=1.0)
+    retry_s: float = opt(30.0, "wait after a failed automatic learning before the next "
+                         "try; doubles after each failure up to retry_max_s", lo=1.0,
+                         hi=86400.0, unit="s")
+    retry_max_s: float = opt(600.0, "longest wait between automatic learning tries",
+                             lo=1.0, hi=86400.0, unit="s")
+    stale_fit: float = opt(0.6, "the reference is called stale when its fit (match quality "
+                           "while the fan turns, 1 = as the reference promised) stays below "
+                           "this over stale_after_s of turning", lo=0.0, hi=1.0)
+    stale_after_s: float = opt(180.0, "seconds of turning the fit is averaged over", lo=10.0,
+                               hi=86400.0, unit="s")
+    auto_relearn: bool = opt(False, "learn a new reference by itself when the stored one is "
+                             "stale or invalid (the old one is kept as "
+                             "<daemon.reference>.previous)")
 
 
 @dataclass(frozen=True)
@@ -219,6 +255,7 @@ class Config:
     tracking: TrackingSettings = field(default_factory=TrackingSettings)
     mqtt: MqttSettings = field(default_factory=MqttSettings)
     daemon: DaemonSettings = field(default_factory=DaemonSettings)
+    reference: ReferenceSettings = field(default_factory=ReferenceSettings)
     sim: SimSettings = field(default_factory=SimSettings)
     #: Folder of the config file; relative paths in it are resolved against this.
     base_dir: str = field(default=".", metadata=dict(internal=True))
@@ -347,7 +384,22 @@ def _build(cls: type, data: Any, prefix: str, lines: Mapping[str, int],
     return cls(**kwargs)
 
 
+#: Most samples a reference is folded from (io/wav.py REFERENCE_SAMPLES: its memory).
+_REFERENCE_SAMPLES = 1 << 20
+
+
 def _check_cross(cfg: Config, lines: Mapping[str, int], source: str | None) -> None:
+    r = cfg.reference
+    longest = _REFERENCE_SAMPLES / cfg.audio.sample_rate
+    if r.learn_seconds > longest + 1e-9:
+        raise ConfigError("reference.learn_seconds", r.learn_seconds,
+                          f"must be at most {longest:.1f} s at {cfg.audio.sample_rate} Hz "
+                          "(a reference folds at most 2^20 samples); lower it",
+                          source=source, line=lines.get("reference.learn_seconds"))
+    if r.retry_max_s < r.retry_s:
+        raise ConfigError("reference.retry_max_s", r.retry_max_s,
+                          f"must be at least reference.retry_s ({r.retry_s:g} s)",
+                          source=source, line=lines.get("reference.retry_max_s"))
     s = cfg.scene
     if s.gate_start_m is not None and s.gate_stop_m is not None and s.gate_stop_m <= s.gate_start_m:
         raise ConfigError("scene.gate_stop_m", s.gate_stop_m,
