@@ -12,6 +12,7 @@ import pytest
 
 from bladesonar import __version__, config
 from bladesonar.dsp.decide import Decision
+from bladesonar.live import Estimate
 from bladesonar.service import messages as M
 
 T0 = 1_700_000_000.25  # 2023-11-14T22:13:20.250Z
@@ -21,13 +22,12 @@ def cfg_with(**mqtt):
     return config.from_mapping({"device_id": "fan-1", "mqtt": mqtt})
 
 
-def live_estimate() -> dict:
-    """What LiveAnalyzer.estimate() returns: Decision.as_dict() plus the live fields."""
+def live_estimate() -> Estimate:
+    """What LiveAnalyzer.estimate() returns: a Decision plus the live fields."""
     d = Decision("reversed", "cw", -0.70069, 0.35036, 21.021, 0.9718,
                  "relative rate -0.7007 +- 0.0208", rate_state="changing",
-                 rate_change_hz_s=-0.04512).as_dict()
-    d.update(rotating=True, window_s=4.0, reference="0123456789ab")
-    return d
+                 rate_change_hz_s=-0.04512)
+    return Estimate.from_decision(d, window_s=4.0, reference="0123456789ab")
 
 
 # -- topics ------------------------------------------------------------------------------
@@ -113,6 +113,25 @@ def test_state_payload_fills_missing_keys_with_null_and_keeps_status():
     assert set(M.STATE_KEYS) <= set(p)
 
 
+def test_state_payload_of_nothing_known_has_a_status_and_its_detail():
+    p = M.state_payload(Estimate.unknown("learning"), t=T0, status="learning",
+                        detail="recording")
+    assert p["direction"] == "unknown" and p["rotating"] is None and p["rate_hz"] is None
+    assert (p["status"], p["detail"]) == ("learning", "recording")
+    assert M.state_payload(None, t=T0)["direction"] == "unknown"
+
+
+def test_estimate_from_a_decision_rounds_like_the_offline_answer():
+    d = Decision("same", "ccw", 0.123456789, 0.4567891, 27.4073, 0.912345, "r",
+                 warnings=["w"], rate_state="settled", rate_change_hz_s=0.0012345)
+    e = Estimate.from_decision(d, window_s=5.0, reference="ab")
+    off = d.as_dict()
+    for k in ("relative_rate", "rate_hz", "rpm", "rate_change_hz_s", "confidence"):
+        assert getattr(e, k) == off[k], k
+    assert e.rotating is True and e.known and e.fields()["warnings"] == ["w"]
+    assert Estimate.unknown("x").rotating is None
+
+
 def test_event_payload():
     assert M.event_payload("reversed", {"direction": "reversed", "rate_hz": 0.3503612},
                            t=T0) == {
@@ -137,12 +156,89 @@ def test_message_qos_and_retain():
 
 
 # -- discovery ---------------------------------------------------------------------------
+#
+# What Home Assistant accepts in a discovery config, per platform (the MQTT integration's
+# DISCOVERY_SCHEMA of Home Assistant 2025.4.4, as documented on home-assistant.io:
+# integrations sensor.mqtt, binary_sensor.mqtt, event.mqtt, button.mqtt, select.mqtt, and
+# the discovery page's "device" and "origin" blocks). An unknown key is refused by Home
+# Assistant (the whole entity is dropped with an error in its log), so the test refuses it.
 
-TOPIC_RE = re.compile(r"homeassistant/(sensor|binary_sensor)/fan-1/([a-zA-Z0-9_-]+)/config")
+_COMMON = {"availability", "availability_mode", "availability_template", "availability_topic",
+           "device", "enabled_by_default", "encoding", "entity_category", "entity_picture",
+           "icon", "json_attributes_template", "json_attributes_topic", "name", "object_id",
+           "origin", "payload_available", "payload_not_available", "qos", "unique_id"}
+HA_SCHEMA = {
+    "sensor": (_COMMON | {"device_class", "expire_after", "force_update",
+                          "last_reset_value_template", "options", "state_class",
+                          "state_topic", "suggested_display_precision",
+                          "unit_of_measurement", "value_template"}, {"state_topic"}),
+    "binary_sensor": (_COMMON | {"device_class", "expire_after", "force_update", "off_delay",
+                                 "payload_off", "payload_on", "state_topic",
+                                 "value_template"}, {"state_topic"}),
+    "event": (_COMMON | {"device_class", "event_types", "state_topic", "value_template"},
+              {"state_topic", "event_types"}),
+    "button": (_COMMON | {"command_template", "command_topic", "device_class",
+                          "payload_press", "retain"}, {"command_topic"}),
+    "select": (_COMMON | {"command_template", "command_topic", "optimistic", "options",
+                          "retain", "state_topic", "value_template"},
+               {"command_topic", "options"}),
+}
+#: entity_category values each platform allows (sensors cannot be "config")
+HA_CATEGORIES = {"sensor": {"diagnostic"}, "binary_sensor": {"diagnostic"},
+                 "event": {"diagnostic"}, "button": {"config", "diagnostic"},
+                 "select": {"config", "diagnostic"}}
+HA_DEVICE_KEYS = {"configuration_url", "connections", "hw_version", "identifiers",
+                  "manufacturer", "model", "model_id", "name", "serial_number",
+                  "suggested_area", "sw_version", "via_device"}
+HA_ORIGIN_KEYS = {"name", "sw_version", "support_url"}
+HA_STATE_CLASSES = {"measurement", "total", "total_increasing"}
+#: Home Assistant's own state words: no entity may use them as a value of its own
+HA_RESERVED = {"unknown", "unavailable"}
+
+TOPIC_RE = re.compile(
+    r"homeassistant/(sensor|binary_sensor|event|button|select)/fan-1/([a-zA-Z0-9_-]+)/config")
 
 
 def discovery(**mqtt):
     return {m.topic: m for m in M.discovery_messages(cfg_with(**mqtt))}
+
+
+def configs(**mqtt):
+    """{(component, object_id): config} of the entities announced (not the removals)."""
+    out = {}
+    for topic, m in discovery(**mqtt).items():
+        if m.payload is not None:
+            g = TOPIC_RE.fullmatch(topic)
+            out[(g.group(1), g.group(2))] = json.loads(m.encode())
+    return out
+
+
+def test_discovery_configs_pass_home_assistants_schema():
+    for (component, object_id), c in configs().items():
+        allowed, required = HA_SCHEMA[component]
+        assert set(c) <= allowed, (object_id, set(c) - allowed)
+        assert required <= set(c), (object_id, required - set(c))
+        assert set(c["device"]) <= HA_DEVICE_KEYS and set(c["origin"]) <= HA_ORIGIN_KEYS
+        assert c["origin"]["name"]
+        if "entity_category" in c:
+            assert c["entity_category"] in HA_CATEGORIES[component], object_id
+        if c.get("device_class") == "enum":
+            # an enum sensor has options and neither a unit nor a state class
+            assert c["options"] and "unit_of_measurement" not in c and "state_class" not in c
+        if "options" in c:
+            assert not HA_RESERVED & set(c["options"]), (object_id, c["options"])
+            assert len(set(c["options"])) == len(c["options"])
+        if component == "event":
+            assert c["event_types"] and not HA_RESERVED & set(c["event_types"])
+        if "state_class" in c:
+            assert c["state_class"] in HA_STATE_CLASSES
+            assert c.get("device_class") not in ("enum", "timestamp")
+        if c.get("device_class") == "timestamp":
+            assert "unit_of_measurement" not in c
+        for key in ("state_topic", "command_topic", "availability_topic",
+                    "json_attributes_topic"):
+            if key in c:
+                assert "+" not in c[key] and "#" not in c[key]
 
 
 def test_discovery_topics_ids_and_availability():
@@ -150,58 +246,210 @@ def test_discovery_topics_ids_and_availability():
     t = M.Topics.for_config(cfg_with())
     ids = set()
     for topic, m in msgs.items():
-        assert TOPIC_RE.fullmatch(topic), topic
+        g = TOPIC_RE.fullmatch(topic)
+        assert g, topic
         assert m.retain and m.qos == 1
+        if m.payload is None:       # a retired entity, removed by an empty config
+            assert (g.group(1), g.group(2)) == ("sensor", "uptime")
+            continue
         c = json.loads(m.encode())
-        assert c["unique_id"] == f"bladesonar_fan-1_{TOPIC_RE.fullmatch(topic).group(2)}"
+        assert c["unique_id"] == f"bladesonar_fan-1_{g.group(2)}"
         ids.add(c["unique_id"])
         assert c["availability_topic"] == t.availability
         assert (c["payload_available"], c["payload_not_available"]) == ("online", "offline")
-        assert c["state_topic"] in (t.state, t.stats)
-        assert c["device"] == {"identifiers": ["bladesonar_fan-1"], "name": "fan-1",
+        assert c.get("state_topic", t.state) in (t.state, t.stats, t.status, t.event)
+        assert c.get("command_topic", t.command_reference) in t.commands
+        assert c["device"] == {"identifiers": ["bladesonar_fan-1"], "name": "Fan 1",
                                "manufacturer": "bladesonar",
                                "model": "Pulsed-sonar rotation sensor",
                                "sw_version": __version__}
         assert c["origin"]["name"] == "bladesonar"
-    assert len(ids) == len(msgs)
+    assert len(ids) == len(msgs) - 1
+
+
+def test_device_name_from_config_and_entity_names_do_not_repeat_it():
+    c = configs(device_name="Living room fan")
+    assert {x["device"]["name"] for x in c.values()} == {"Living room fan"}
+    names = [x["name"] for x in c.values()]
+    assert len(set(names)) == len(names)
+    assert not any("fan 1" in n.lower() or "bladesonar" in n.lower() for n in names)
+    assert M.friendly_name("living-room_fan") == "Living room fan"
+    assert M.friendly_name("x") == "X"
 
 
 def test_discovery_entities():
-    c = {TOPIC_RE.fullmatch(t).group(2): json.loads(m.encode()) for t, m in discovery().items()}
-    assert {"rate", "rpm", "direction", "confidence", "rotating", "xruns",
-            "dropped_pulses"} <= set(c)
-    rate = c["rate"]
+    c = configs()
+    assert {("sensor", "rotation"), ("sensor", "rpm"), ("binary_sensor", "rotating"),
+            ("sensor", "direction"), ("sensor", "status"), ("event", "motion"),
+            ("event", "reference"), ("button", "learn_reference"),
+            ("button", "forget_reference"), ("select", "reference_direction"),
+            ("sensor", "started")} <= set(c)
+    assert ("sensor", "uptime") not in c
+    assert c[("sensor", "rotation")]["options"] == ["clockwise", "counterclockwise", "stopped"]
+    assert c[("sensor", "direction")]["options"] == ["same", "reversed", "stopped"]
+    assert c[("sensor", "status")]["options"] == list(M.STATUSES)
+    assert c[("sensor", "status")]["entity_category"] == "diagnostic"
+    assert c[("event", "motion")]["event_types"] == ["started", "stopped", "reversed"]
+    assert c[("sensor", "started")]["device_class"] == "timestamp"
+    rate = c[("sensor", "rate")]
     assert (rate["device_class"], rate["unit_of_measurement"], rate["state_class"]) == \
         ("frequency", "Hz", "measurement")
-    assert (c["rpm"]["unit_of_measurement"], c["rpm"]["state_class"]) == ("rpm", "measurement")
-    assert c["direction"]["device_class"] == "enum"
-    assert c["direction"]["options"] == ["same", "reversed", "stopped", "unknown"]
-    assert c["rotation"]["options"] == ["cw", "ccw", "none"]
-    assert c["xruns"]["entity_category"] == "diagnostic"
-    assert c["dropped_pulses"]["entity_category"] == "diagnostic"
-    assert "entity_category" not in rate
-    rot = c["rotating"]
-    assert (rot["payload_on"], rot["payload_off"]) == ("ON", "OFF")
-    assert "ON" in rot["value_template"] and "OFF" in rot["value_template"]
-
-
-def test_value_templates_read_keys_the_payloads_have():
+    assert (c[("sensor", "rpm")]["unit_of_measurement"],
+            c[("sensor", "rpm")]["state_class"]) == ("rpm", "measurement")
+    learn = c[("button", "learn_reference")]
     t = M.Topics.for_config(cfg_with())
-    state_keys = set(M.state_payload(live_estimate()))
-    stats_keys = {"uptime_s", "cpu_share", "pulses_processed", "dropped_pulses", "xruns",
-                  "reconnects", "dropped_events"}  # what runner.Service.stats() builds
-    for m in discovery().values():
-        c = m.payload
-        used = set(re.findall(r"value_json\.(\w+)", c["value_template"]))
-        assert used, c["value_template"]
-        assert used <= (state_keys if c["state_topic"] == t.state else stats_keys), c
-        # balanced Jinja delimiters
-        tpl = c["value_template"]
-        assert tpl.count("{{") == tpl.count("}}") and tpl.count("{%") == tpl.count("%}")
+    assert learn["command_topic"] == t.command_reference and learn["payload_press"] == "learn"
+    assert c[("button", "forget_reference")]["payload_press"] == "forget"
+    sel = c[("select", "reference_direction")]
+    assert sel["command_topic"] == t.command_direction and sel["state_topic"] == t.status
+    for opt in sel["options"]:      # every option the select sends is a command we take
+        assert M.parse_command(t, t.command_direction, opt.encode()).name == "direction"
+    # no entity carries the whole state as attributes (each message would be a change)
+    assert not any(x.get("json_attributes_topic") == t.state for x in c.values())
+    rot = c[("binary_sensor", "rotating")]
+    assert (rot["payload_on"], rot["payload_off"]) == ("ON", "OFF")
+
+
+def test_commands_off_leaves_out_the_command_entities():
+    c = configs(commands=False)
+    assert not any(k[0] in ("button", "select") for k in c)
+    assert ("sensor", "status") in c
 
 
 def test_discovery_follows_the_prefixes():
     msgs = discovery(discovery_prefix="ha", topic_prefix="home")
     assert all(t.startswith("ha/") for t in msgs)
     assert all(m.payload["availability_topic"] == "home/fan-1/availability"
-               for m in msgs.values())
+               for m in msgs.values() if m.payload is not None)
+
+
+# -- the templates, rendered by Jinja2 (Home Assistant's template engine) ---------------
+
+
+def render(template: str, payload: dict) -> str:
+    """What Home Assistant computes from a message: its templates are Jinja2 in a
+    sandbox, with ``value_json`` the decoded payload."""
+    jinja2 = pytest.importorskip("jinja2")
+    from jinja2.sandbox import ImmutableSandboxedEnvironment
+
+    env = ImmutableSandboxedEnvironment()
+    return env.from_string(template).render(value_json=json.loads(M.dumps(payload)),
+                                            value=M.dumps(payload)).strip()
+
+
+def states_of(payload: dict, topic_key: str) -> dict[str, str]:
+    t = M.Topics.for_config(cfg_with())
+    topic = getattr(t, topic_key)
+    return {k[1]: render(c["value_template"], payload) for k, c in configs().items()
+            if c.get("state_topic") == topic and "value_template" in c}
+
+
+def _estimate(direction, rotation, rate):
+    from bladesonar.live import Estimate
+    from bladesonar.transitions import Direction
+
+    return Estimate(Direction(direction), rotation, None if rate is None else 1.0, rate,
+                    None if rate is None else rate * 60, "settled", 0.0, 0.9, "r", 4.0, "ab")
+
+
+def test_state_templates_give_words_for_people_and_none_when_not_known():
+    c = configs()
+    cases = [
+        (_estimate("same", "ccw", 0.4512345), {"rotation": "counterclockwise",
+                                               "direction": "same", "rotating": "ON",
+                                               "rate": "0.451", "rpm": "27.1"}),
+        (_estimate("reversed", "cw", 0.3), {"rotation": "clockwise",
+                                            "direction": "reversed", "rotating": "ON"}),
+        (_estimate("reversed", None, 0.3), {"rotation": "None", "direction": "reversed"}),
+        (_estimate("stopped", None, 0.0), {"rotation": "stopped", "direction": "stopped",
+                                           "rotating": "OFF", "rate": "0.0"}),
+        (_estimate("unknown", None, None), {"rotation": "None", "direction": "None",
+                                            "rotating": "None", "rate": "None",
+                                            "rpm": "None"}),
+    ]
+    for est, want in cases:
+        got = states_of(M.state_payload(est, t=T0), "state")
+        for k, v in want.items():
+            assert got[k] == v, (est.direction, k, got[k])
+        for k, v in got.items():
+            opts = c.get(("sensor", k), {}).get("options")
+            assert opts is None or v in opts or v == "None", (k, v)
+            assert v not in HA_RESERVED
+    unknown = M.state_payload(None, t=T0, status="reference_missing", detail="no file")
+    assert states_of(unknown, "state")["confidence"] == "None"
+
+
+def test_status_and_select_templates():
+    p = M.status_payload({"status": "reference_stale", "detail": "fit 0.3", "reference": "ab",
+                          "reference_direction": "cw", "reference_rate_hz": 0.45,
+                          "fit": 0.31, "since": "x"})
+    got = states_of(p, "status")
+    assert got["status"] == "reference_stale"
+    assert got["reference_fit"] == "31.0"
+    assert got["reference_direction"] == "clockwise"
+    none = states_of(M.status_payload({"status": "reference_missing"}), "status")
+    assert none["reference_fit"] == "None" and none["reference_direction"] == "None"
+    attrs = configs()[("sensor", "status")]["json_attributes_template"]
+    assert json.loads(render(attrs, p)) == {"detail": "fit 0.3", "reference": "ab",
+                                            "reference_rate_hz": 0.45}
+    with pytest.raises(ValueError, match="learning"):
+        M.status_payload({"status": "unknown"})
+
+
+def test_event_templates_give_home_assistant_event_json_or_nothing():
+    c = configs()
+    motion = c[("event", "motion")]["value_template"]
+    ref = c[("event", "reference")]["value_template"]
+    ev = M.event_payload("reversed", {"direction": "reversed", "rotation": "cw",
+                                      "rate_hz": 0.35}, t=T0)
+    assert json.loads(render(motion, ev)) == {"event_type": "reversed", "rotation": "cw",
+                                              "rate_hz": 0.35}
+    assert render(ref, ev) == ""            # empty: Home Assistant ignores it
+    learned = M.event_payload("reference_learned", {"reference": "ab", "detail": None}, t=T0)
+    assert json.loads(render(ref, learned))["event_type"] == "learned"
+    assert render(motion, learned) == ""
+    for kind in M.EVENT_KINDS:
+        out = [render(tpl, M.event_payload(kind, {}, t=T0)) for tpl in (motion, ref)]
+        assert sum(1 for o in out if o) == 1, kind
+
+
+def test_stats_templates():
+    stats = M.stats_payload({"started_at": "2026-11-23T09:29:18.904+00:00", "xruns": 2,
+                             "dropped_pulses": 3, "reconnects": 1, "cpu_share": 0.0734},
+                            t=T0)
+    got = states_of(stats, "stats")
+    assert got["started"] == "2026-11-23T09:29:18.904+00:00"
+    assert dt.datetime.fromisoformat(got["started"]).utcoffset() == dt.timedelta(0)
+    assert got["cpu"] == "7.3" and got["xruns"] == "2"
+
+
+# -- commands ------------------------------------------------------------------------------
+
+
+def test_commands_are_parsed_without_case_and_space():
+    t = M.Topics.for_config(cfg_with())
+    assert M.parse_command(t, t.command_reference, b" Learn\n") == M.Command("learn")
+    assert M.parse_command(t, t.command_reference, b"FORGET") == M.Command("forget")
+    assert M.parse_command(t, t.command_direction, b"clockwise") == M.Command("direction",
+                                                                              "cw")
+    assert M.parse_command(t, t.command_direction, b"ccw").value == "ccw"
+    assert M.parse_command(t, t.command_direction, b"unknown").value == "unknown"
+    assert M.parse_command(t, t.command_direction, b"Not set").value == "unknown"
+
+
+@pytest.mark.parametrize("topic_key, payload, match", [
+    ("command_reference", b"", "unknown command ''"),
+    ("command_reference", b"learnx", "unknown command 'learnx'"),
+    ("command_reference", b"\xff\xfe", "not UTF-8"),
+    ("command_reference", b"x" * 65, "65 bytes"),
+    ("command_reference", b"learn" * 10000, "50000 bytes"),
+    ("command_direction", b"up", "unknown direction 'up'; send one of cw, ccw"),
+    ("command_direction", b"not  set", "unknown direction"),
+    ("command_direction", "lëarn\u202e".encode(), "unknown direction"),
+    ("state", b"learn", "not a command topic"),
+])
+def test_bad_and_hostile_commands_are_refused_with_the_value_and_the_fix(topic_key, payload,
+                                                                         match):
+    t = M.Topics.for_config(cfg_with())
+    with pytest.raises(M.CommandError, match=re.escape(match) if "'" in match else match):
+        M.parse_command(t, getattr(t, topic_key), payload)

@@ -307,10 +307,10 @@ def test_messages_stuck_in_a_stalled_connection_do_not_overwrite_newer_ones(tmp_
 def test_discovery_configs_and_home_assistant_restart(broker, publishers, tmp_path):
     cfg = make_cfg(tmp_path, broker.port, device_id="fan_1")
     t = Topics.for_config(cfg)
-    n = len(discovery_messages(cfg))
+    n = len([m for m in discovery_messages(cfg) if m.payload is not None])
 
     def configs(ms):
-        return [m for m in ms if m.topic.endswith("/config")]
+        return [m for m in ms if m.topic.endswith("/config") and m.payload]
 
     with Subscriber(broker.port, ["homeassistant/#", t.state]) as sub:
         pub = publishers(cfg)
@@ -324,7 +324,7 @@ def test_discovery_configs_and_home_assistant_restart(broker, publishers, tmp_pa
             assert parts[0] == "homeassistant" and parts[2] == "fan_1", m.topic
             c = json.loads(m.payload)
             assert c["availability_topic"] == t.availability
-            assert c["state_topic"] in (t.state, t.stats)
+            assert c.get("state_topic", t.state) in (t.state, t.stats, t.status, t.event)
             by_object[parts[3]] = c
         assert len({c["unique_id"] for c in by_object.values()}) == n
         rate = by_object["rate"]
@@ -340,10 +340,12 @@ def test_discovery_configs_and_home_assistant_restart(broker, publishers, tmp_pa
         sub.client.publish(t.ha_status, "offline", qos=1)
         time.sleep(0.3)
         assert len(configs(sub.messages)) == 2 * n
-    # the retained configs are there for a Home Assistant that starts later
+    # the retained configs are there for a Home Assistant that starts later (and the
+    # retired uptime sensor's config is gone)
     with Subscriber(broker.port, ["homeassistant/+/fan_1/+/config"]) as late:
-        assert all(m.retain for m in late.wait_until(
-            lambda ms: len(ms) >= n and ms))
+        got = late.wait_until(lambda ms: len(ms) >= n and ms)
+        assert all(m.retain and m.payload for m in got)
+        assert not any(m.topic.endswith("/uptime/config") for m in got)
 
 
 @pytest.mark.broker
@@ -460,3 +462,126 @@ def test_tls_verifies_the_broker(tmp_path, publishers, caplog):
         untrusted.start()
         wait(lambda: "TLS handshake failed" in caplog.text, what="TLS failure logged")
         assert not untrusted.counters()["connected"]
+
+
+# -- commands (any client of the broker can send them) ------------------------------------
+
+
+def _commands(pub: MqttPublisher, n: int, timeout: float = 5.0) -> list:
+    got: list = []
+    wait(lambda: got.extend(pub.take_commands()) or len(got) >= n, timeout,
+         f"{n} commands")
+    return got
+
+
+@pytest.mark.broker
+def test_commands_from_the_broker_reach_the_loop(broker, publishers, tmp_path):
+    from bladesonar.service.messages import Command
+
+    cfg = make_cfg(tmp_path, broker.port, device_id="cmd")
+    t = Topics.for_config(cfg)
+    pub = publishers(cfg)
+    pub.start()
+    connected(pub)
+    with Subscriber(broker.port, ["bladesonar/#"]) as sub:
+        time.sleep(0.3)     # our subscription is made in on_connect
+        sub.client.publish(t.command_reference, "learn", qos=1)
+        sub.client.publish(t.command_direction, " Clockwise ", qos=0)
+        got = _commands(pub, 2)
+    assert got == [Command("learn"), Command("direction", "cw")]
+    assert pub.counters()["commands"] == 2
+
+
+@pytest.mark.broker
+def test_bad_hostile_and_retained_commands_are_ignored_and_logged_sparingly(
+        broker, publishers, tmp_path, caplog):
+    cfg = make_cfg(tmp_path, broker.port, device_id="cmd")
+    t = Topics.for_config(cfg)
+    caplog.set_level(logging.INFO, logger="bladesonar.service.publish")
+    with Subscriber(broker.port, ["bladesonar/#"]) as sub:
+        # a retained command left on the broker must not run at every start
+        sub.client.publish(t.command_reference, "forget", qos=1, retain=True).wait_for_publish()
+        pub = publishers(cfg)
+        pub.start()
+        connected(pub)
+        time.sleep(0.3)
+        hostile = [b"", b"LEARNX", b"\xff\xfe\x00", b"x" * 100_000, "fórget".encode(),
+                   b"{\"cmd\": \"learn\"}", b"learn\x00"] * 30
+        for p in hostile:
+            sub.client.publish(t.command_reference, p, qos=0)
+        sub.client.publish(t.command_direction, b"sideways", qos=1).wait_for_publish()
+        wait(lambda: pub.counters()["commands_refused"] >= len(hostile) + 2, 10,
+             "all refused")
+        assert pub.take_commands() == []
+        # the loop still takes a good one afterwards (the bucket refilled meanwhile? no:
+        # refused messages cost no token)
+        sub.client.publish(t.command_reference, "learn", qos=1)
+        assert [c.name for c in _commands(pub, 1)] == ["learn"]
+    lines = [r.getMessage() for r in caplog.records if "MQTT: " in r.getMessage()
+             and ("ignored" in r.getMessage() or "refused" in r.getMessage()
+                  or "unknown" in r.getMessage())]
+    assert len(lines) == 1, lines          # at most one line a minute
+    assert "retained command is ignored" in lines[0]
+    assert "mosquitto_pub -r -n -t bladesonar/cmd/command/reference" in lines[0]
+
+
+@pytest.mark.broker
+def test_a_burst_of_commands_is_rate_limited(broker, publishers, tmp_path):
+    cfg = make_cfg(tmp_path, broker.port, device_id="cmd")
+    t = Topics.for_config(cfg)
+    pub = publishers(cfg)
+    pub.start()
+    connected(pub)
+    with Subscriber(broker.port, ["bladesonar/#"]) as sub:
+        time.sleep(0.3)
+        for _ in range(50):
+            sub.client.publish(t.command_reference, "learn", qos=1)
+        wait(lambda: pub.counters()["commands"] + pub.counters()["commands_refused"] >= 50,
+             10, "50 handled")
+    got = pub.take_commands()
+    assert len(got) == 3 and pub.counters()["commands_refused"] == 47
+
+
+@pytest.mark.broker
+def test_commands_off_subscribes_to_nothing(broker, publishers, tmp_path):
+    cfg = make_cfg(tmp_path, broker.port, device_id="cmd", commands=False)
+    t = Topics.for_config(cfg)
+    pub = publishers(cfg)
+    pub.start()
+    connected(pub)
+    with Subscriber(broker.port, ["bladesonar/#"]) as sub:
+        time.sleep(0.3)
+        sub.client.publish(t.command_reference, "learn", qos=1).wait_for_publish()
+        time.sleep(0.5)
+    assert pub.take_commands() == [] and pub.counters()["commands_refused"] == 0
+
+
+def test_command_inbox_refills_its_tokens_with_time():
+    from bladesonar.service.publish import CommandInbox
+
+    now = [0.0]
+    inbox = CommandInbox(Topics.for_config(config.Config()), burst=2, interval_s=5.0,
+                         clock=lambda: now[0])
+    topic = inbox.topics.command_reference
+    assert [inbox.offer(topic, b"learn") is not None for _ in range(3)] == [True, True, False]
+    now[0] = 5.0
+    assert inbox.offer(topic, b"learn") is not None
+    assert inbox.offer(topic, b"learn") is None
+    assert len(inbox.take()) == 3 and inbox.take() == []
+
+
+@pytest.mark.broker
+def test_retained_values_go_out_before_availability_online(broker, publishers, tmp_path):
+    """A subscriber (Home Assistant) sees the new run's state before 'online': never the
+    previous run's retained values shown as current."""
+    cfg = make_cfg(tmp_path, broker.port, device_id="order")
+    t = Topics.for_config(cfg)
+    with Subscriber(broker.port, ["bladesonar/#"]) as sub:
+        pub = publishers(cfg)
+        pub.publish_state(None, status="starting")
+        pub.publish_status({"status": "starting"})
+        pub.start()
+        sub.wait_until(lambda ms: any(m.topic == t.availability for m in ms))
+        order = [m.topic for m in sub.messages]
+    assert order.index(t.state) < order.index(t.availability)
+    assert order.index(t.status) < order.index(t.availability)

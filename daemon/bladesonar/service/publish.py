@@ -29,17 +29,29 @@ import stat
 import sys
 import threading
 import time
-from typing import IO, Any, Protocol
+from typing import IO, TYPE_CHECKING, Any, Protocol
 
 from ..errors import ConfigError
-from .messages import (Message, Topics, availability_message, clean, discovery_messages,
-                       event_message, event_payload, state_message, state_payload,
-                       stats_message, stats_payload)
+from .messages import (Command, CommandError, Message, Topics, availability_message, clean,
+                       discovery_messages, event_message, event_payload, parse_command,
+                       state_message, state_payload, stats_message, stats_payload,
+                       status_message, status_payload)
+
+if TYPE_CHECKING:
+    from ..live import Estimate
 
 log = logging.getLogger(__name__)
 #: At most one log line per this many seconds for Home Assistant's ``online`` messages
 #: (anyone on the broker can send them; a flood once logged 25,000 lines).
 HA_LOG_INTERVAL_S = 60.0
+#: Commands (the command topics are writable by any client of the broker): at most
+#: COMMAND_BURST at once, then one per COMMAND_INTERVAL_S; more are dropped and counted.
+COMMAND_BURST = 3
+COMMAND_INTERVAL_S = 5.0
+#: Commands waiting for the processing loop (it takes them every pulse).
+COMMAND_QUEUE = 8
+#: At most one log line per this many seconds about refused commands.
+COMMAND_LOG_INTERVAL_S = 60.0
 #: Largest password file read, bytes (/dev/zero there must not fill the memory).
 MAX_PASSWORD_FILE = 64 << 10
 #: Largest TLS certificate or key file (a CA bundle is about 200 kB), bytes.
@@ -51,11 +63,20 @@ class Publisher(Protocol):
 
     def start(self) -> None: ...
 
-    def publish_state(self, estimate: dict[str, Any]) -> None: ...
+    def publish_state(self, estimate: Estimate | None, *, status: str = "ok",
+                      detail: str | None = None) -> None: ...
+
+    def publish_status(self, fields: dict[str, Any]) -> None:
+        """The status message (status, reference); the runner calls it on change only."""
+        ...
 
     def publish_event(self, kind: str, **details: Any) -> None: ...
 
     def publish_stats(self, stats: dict[str, Any]) -> None: ...
+
+    def take_commands(self) -> list[Command]:
+        """Commands received since the last call, validated and rate-limited."""
+        ...
 
     def counters(self) -> dict[str, Any]:
         """At least ``reconnects`` and ``dropped_events``."""
@@ -158,6 +179,80 @@ def tls_files(cfg: Any) -> dict[str, str]:
     return files
 
 
+# -- commands --------------------------------------------------------------------------------
+
+
+class CommandInbox:
+    """Commands from the broker's network thread to the processing loop.
+
+    Any client of the broker can write the command topics, so nothing here trusts a
+    message: retained ones are ignored (a command left on the broker would run again at
+    every start), payloads are validated (:func:`messages.parse_command`), at most
+    ``burst`` commands pass at once and then one per ``interval_s`` (a token bucket), at
+    most ``queue`` wait for the loop, and the log says what was refused at most once per
+    ``log_interval_s`` (with a count of the lines not written).
+    """
+
+    def __init__(self, topics: Topics, *, burst: int = COMMAND_BURST,
+                 interval_s: float = COMMAND_INTERVAL_S, queue: int = COMMAND_QUEUE,
+                 log_interval_s: float = COMMAND_LOG_INTERVAL_S,
+                 clock: Any = time.monotonic) -> None:
+        self.topics = topics
+        self.burst, self.interval_s, self.log_interval_s = burst, interval_s, log_interval_s
+        self.clock = clock
+        self._lock = threading.Lock()
+        self._q: collections.deque[Command] = collections.deque(maxlen=queue)
+        self._tokens = float(burst)
+        self._t = clock()
+        self._logged_at = -math.inf
+        self._quiet = 0
+        self.accepted = 0
+        self.refused = 0
+
+    def offer(self, topic: str, payload: bytes, retain: bool = False) -> Command | None:
+        """A message from a command topic; the command if it was accepted."""
+        why: str | None = None
+        cmd: Command | None = None
+        if retain:
+            why = (f"{topic}: a retained command is ignored (it would run at every start); "
+                   f"clear it with: mosquitto_pub -r -n -t {topic}")
+        else:
+            try:
+                cmd = parse_command(self.topics, topic, payload)
+            except CommandError as exc:
+                why = str(exc)
+        with self._lock:
+            now = self.clock()
+            if cmd is not None:
+                self._tokens = min(float(self.burst),
+                                   self._tokens + (now - self._t) / self.interval_s)
+                self._t = now
+                if self._tokens >= 1.0:
+                    self._tokens -= 1.0
+                    self._q.append(cmd)
+                    self.accepted += 1
+                    log.info("MQTT: command %s%s received", cmd.name,
+                             f" {cmd.value}" if cmd.value else "")
+                    return cmd
+                why = (f"{topic}: command {cmd.name} refused: more than {self.burst} "
+                       f"commands within {self.interval_s * self.burst:g} s")
+            self.refused += 1
+            if now - self._logged_at >= self.log_interval_s:
+                more = f" ({self._quiet} more refused since the last such line)" \
+                    if self._quiet else ""
+                log.warning("MQTT: %s%s", why, more)
+                self._logged_at, self._quiet = now, 0
+            else:
+                self._quiet += 1
+        return None
+
+    def take(self) -> list[Command]:
+        with self._lock:
+            got = list(self._q)
+            self._q.clear()
+        return got
+
+
 # -- MQTT ----------------------------------------------------------------------------------
 
 
@@ -211,12 +306,17 @@ class MqttPublisher:
                               "mqtt.password_env)")
         files = tls_files(cfg)
         self._discovery = discovery_messages(cfg, self.topics) if m.discovery else []
+        self.commands = CommandInbox(self.topics)
+        self._subscriptions = [(t, 1) for t in self.topics.commands] if m.commands else []
+        if m.discovery:
+            self._subscriptions.append((self.topics.ha_status, 1))
 
         self._lock = threading.RLock()
         self._events: collections.deque[Message] = collections.deque()
         self._event_cap = m.event_queue
         self._inflight: list[tuple[Any, Message]] = []   # (MQTTMessageInfo, event)
         self._state: Message | None = None
+        self._status: Message | None = None
         self._stats: Message | None = None
         self._connected = False
         self._ever_connected = False
@@ -275,13 +375,26 @@ class MqttPublisher:
         self.client.connect_async(self.host, self.port, keepalive=self.cfg.mqtt.keepalive_s)
         self.client.loop_start()
 
-    def publish_state(self, estimate: dict[str, Any]) -> None:
+    def publish_state(self, estimate: Estimate | None, *, status: str = "ok",
+                      detail: str | None = None) -> None:
         """Retained state; while disconnected only the latest is kept."""
-        msg = state_message(self.topics, state_payload(estimate))
+        msg = state_message(self.topics, state_payload(estimate, status=status,
+                                                       detail=detail))
         with self._lock:
             self._state = msg
             if self._connected and not self._closed:
                 self._send(msg)
+
+    def publish_status(self, fields: dict[str, Any]) -> None:
+        """Retained status; while disconnected only the latest is kept."""
+        msg = status_message(self.topics, status_payload(fields))
+        with self._lock:
+            self._status = msg
+            if self._connected and not self._closed:
+                self._send(msg)
+
+    def take_commands(self) -> list[Command]:
+        return self.commands.take()
 
     def publish_event(self, kind: str, **details: Any) -> None:
         """An event; queued (bounded, in order) while disconnected."""
@@ -307,7 +420,9 @@ class MqttPublisher:
     def counters(self) -> dict[str, Any]:
         with self._lock:
             return {"connected": self._connected, "reconnects": self._reconnects,
-                    "dropped_events": self._dropped, "queued_events": len(self._events)}
+                    "dropped_events": self._dropped, "queued_events": len(self._events),
+                    "commands": self.commands.accepted,
+                    "commands_refused": self.commands.refused}
 
     def close(self) -> None:
         """Publish ``offline``, wait briefly for the broker's ack, disconnect."""
@@ -362,14 +477,15 @@ class MqttPublisher:
         self._events = collections.deque(merged)
 
     def _publish_all(self) -> None:
-        """Availability, discovery, latest state and stats: what a fresh subscriber needs."""
+        """Latest state, status and stats, availability, discovery: what a fresh
+        subscriber needs. The retained values go first, so that availability ``online``
+        never shows the previous run's state as current."""
+        for msg in (self._state, self._status, self._stats):
+            if msg is not None:
+                self._send(msg)
         self._send(availability_message(self.topics, True))
         for msg in self._discovery:
             self._send(msg)
-        if self._state is not None:
-            self._send(self._state)
-        if self._stats is not None:
-            self._send(self._stats)
 
     def _take_back_unacked(self) -> None:
         """Before publishing on a new connection: requeue our unacknowledged events and
@@ -422,8 +538,8 @@ class MqttPublisher:
                 while self._events:
                     self._send_event(self._events.popleft())
                 dropped = self._dropped
-            if self._discovery:
-                client.subscribe(self.topics.ha_status, qos=1)
+            if self._subscriptions:
+                client.subscribe(self._subscriptions)
             if first:
                 log.info("MQTT: connected to %s; availability online", self.where)
             else:
@@ -465,6 +581,13 @@ class MqttPublisher:
                         self.where, reason_code, self._event_cap)
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        try:
+            if msg.topic in self.topics.commands:
+                self.commands.offer(msg.topic, bytes(msg.payload), bool(msg.retain))
+                return
+        except Exception:  # noqa: BLE001 - keep the network thread alive
+            log.exception("MQTT: handling a command failed")
+            return
         if msg.topic != self.topics.ha_status or msg.payload.strip().lower() != b"online":
             return
         delay = random.uniform(*self.ha_delay)
@@ -533,8 +656,16 @@ class StdoutPublisher:
             self._started = True
             self._emit(availability_message(self.topics, True))
 
-    def publish_state(self, estimate: dict[str, Any]) -> None:
-        self._emit(state_message(self.topics, state_payload(estimate)))
+    def publish_state(self, estimate: Estimate | None, *, status: str = "ok",
+                      detail: str | None = None) -> None:
+        self._emit(state_message(self.topics, state_payload(estimate, status=status,
+                                                            detail=detail)))
+
+    def publish_status(self, fields: dict[str, Any]) -> None:
+        self._emit(status_message(self.topics, status_payload(fields)))
+
+    def take_commands(self) -> list[Command]:
+        return []
 
     def publish_event(self, kind: str, **details: Any) -> None:
         self._emit(event_message(self.topics, event_payload(kind, details)))
@@ -553,5 +684,5 @@ class StdoutPublisher:
             self._emit(availability_message(self.topics, False))
 
 
-__all__ = ["MqttPublisher", "Publisher", "StdoutPublisher",
+__all__ = ["CommandInbox", "MqttPublisher", "Publisher", "StdoutPublisher",
            "make_publisher", "read_password", "tls_files"]
