@@ -11,7 +11,8 @@ import sys
 DAEMON_MODULES = ("bladesonar.commands.run", "bladesonar.live", "bladesonar.service.runner",
                   "bladesonar.service.audio", "bladesonar.service.alsa_audio",
                   "bladesonar.service.sim_audio", "bladesonar.service.publish",
-                  "bladesonar.service.notify", "bladesonar.io.reference")
+                  "bladesonar.service.notify", "bladesonar.service.learner",
+                  "bladesonar.io.reference")
 FORBIDDEN = ("matplotlib", "scipy.signal", "scipy.optimize", "scipy.ndimage",
              "bladesonar.imaging", "bladesonar.plots", "bladesonar.runtime_report")
 

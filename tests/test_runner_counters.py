@@ -17,6 +17,7 @@ from bladesonar import config
 from bladesonar.analysis import build_reference
 from bladesonar.live import LiveAnalyzer
 from bladesonar.service.backends import open_audio
+from bladesonar.service.messages import state_payload
 from bladesonar.service.notify import NullNotifier
 from bladesonar.service.runner import Service
 from bladesonar.io.scene_file import load_scene
@@ -27,8 +28,11 @@ pytestmark = pytest.mark.slow   # runs the service: outside the fast tier
 
 
 class Collector:
+    """Keeps the state payloads the runner publishes (as the broker would carry them)."""
+
     def __init__(self, cfg):
-        self.states, self.events, self.stats = [], [], []
+        self.states, self.events, self.stats, self.statuses = [], [], [], []
+        self.commands = []
 
     def start(self):
         pass
@@ -36,14 +40,21 @@ class Collector:
     def close(self):
         pass
 
-    def publish_state(self, est):
-        self.states.append(est)
+    def publish_state(self, est, *, status="ok", detail=None):
+        self.states.append(state_payload(est, status=status, detail=detail))
+
+    def publish_status(self, fields):
+        self.statuses.append(dict(fields))
 
     def publish_event(self, kind, **details):
         self.events.append(kind)
 
     def publish_stats(self, stats):
         self.stats.append(stats)
+
+    def take_commands(self):
+        got, self.commands = self.commands, []
+        return got
 
     def counters(self):
         return {}

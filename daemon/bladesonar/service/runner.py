@@ -7,6 +7,7 @@ become status, events and counters, never a crash loop.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import logging
 import os
@@ -14,11 +15,22 @@ import signal
 import statistics
 import threading
 import time
-from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
+
+import numpy as np
 
 from .. import config as config_mod
 from ..errors import BladesonarError, ReferenceMissingError
+from ..live import Estimate, LiveAnalyzer
+from ..reference_fit import FitWatch
+from . import learner
+from .audio import AudioIO, PulseBlock
+from .messages import Command, utc_iso
+from .notify import Notifier, NullNotifier
+from .publish import Publisher
+
+if TYPE_CHECKING:
+    from ..analysis import Reference
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +41,11 @@ REFERENCE_POLL_S = 2.0
 AUDIO_STALL_S = 5.0
 #: Wait before reopening the audio path after a capture without a usable pulse train.
 SIGNAL_RETRY_S = 10.0
+#: How often the reference fit is sampled while tracking, seconds.
+FIT_SAMPLE_S = 1.0
+#: A reference's direction is taken from the estimates made during its recording when at
+#: least this share of them named one rotation and none named the other.
+DIRECTION_AGREEMENT = 0.8
 
 
 def _add_counts(total: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
@@ -49,6 +66,54 @@ class Counters:
     reloads: int = 0
     reload_errors: int = 0
     signal_errors: int = 0
+    references_learned: int = 0
+    learn_failures: int = 0
+
+
+@dataclasses.dataclass
+class Recording:
+    """Contiguous capture for a reference being learned live (the loop appends)."""
+
+    why: str
+    """``command`` (the Learn button), ``auto`` (no reference yet) or ``relearn`` (stale)."""
+    need: int
+    """Samples to record."""
+    blocks: list[np.ndarray] = dataclasses.field(default_factory=list)
+    have: int = 0
+    next_sample: int | None = None
+    restarts: int = 0
+    #: rotations named by the estimates made meanwhile (cw, ccw, other)
+    rotations: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+
+    def add(self, block: PulseBlock) -> bool:
+        """Append one capture block; a gap (lost samples) starts the recording afresh (a
+        reference must be one unbroken stretch). True once complete."""
+        if block.discontinuity or (self.next_sample is not None
+                                   and block.start_sample != self.next_sample):
+            if self.blocks:
+                self.restarts += 1
+            self.blocks, self.have = [], 0
+            self.rotations.clear()
+        self.next_sample = block.start_sample + len(block.samples)
+        self.blocks.append(np.asarray(block.samples, dtype=np.float64))
+        self.have += len(block.samples)
+        return self.have >= self.need
+
+    def samples(self) -> np.ndarray:
+        return np.concatenate(self.blocks)[:self.need]
+
+    def direction(self, ref_known: bool) -> str:
+        """cw or ccw when the running reference knew its direction and the estimates
+        during the recording agreed on one; else unknown."""
+        if not ref_known:
+            return "unknown"
+        n = sum(self.rotations.values())
+        cw, ccw = self.rotations["cw"], self.rotations["ccw"]
+        if n and cw >= DIRECTION_AGREEMENT * n and ccw == 0:
+            return "cw"
+        if n and ccw >= DIRECTION_AGREEMENT * n and cw == 0:
+            return "ccw"
+        return "unknown"
 
 
 class Service:
@@ -59,11 +124,11 @@ class Service:
     """
 
     def __init__(self, cfg: config_mod.Config, *, config_path: str | None,
-                 audio_factory: Callable[[config_mod.Config], Any],
-                 publisher_factory: Callable[[config_mod.Config], Any],
-                 analyzer_factory: Callable[[config_mod.Config, Any], Any],
-                 reference_loader: Callable[[config_mod.Config], Any],
-                 notifier: Any, max_seconds: float | None = None,
+                 audio_factory: Callable[[config_mod.Config], AudioIO],
+                 publisher_factory: Callable[[config_mod.Config], Publisher],
+                 analyzer_factory: Callable[[config_mod.Config, Reference], LiveAnalyzer],
+                 reference_loader: Callable[[config_mod.Config], Reference],
+                 notifier: Notifier | NullNotifier, max_seconds: float | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.cfg = cfg
         self.config_path = config_path
@@ -83,20 +148,38 @@ class Service:
         #: set by the signal handlers (plain stores, no locks: see install_signal_handlers)
         self._sig_stop = False
         self._sig_reload = False
-        self.publisher: Any = None
-        self.audio: Any = None
-        self.analyzer: Any = None
-        self.reference: Any = None
+        self.publisher: Publisher | None = None
+        self.audio: AudioIO | None = None
+        self.analyzer: LiveAnalyzer | None = None
+        self.reference: Reference | None = None
         self._ready_sent = False
-        self._last_state: dict[str, Any] | None = None
+        self._last_state: Estimate | None = None
         self._reference_problem: str | None = None
+        self._reference_missing = False
         #: stat signature of the reference file when it was last read (None: absent)
         self._reference_sig: tuple | None = None
         self._next_reference_check = 0.0
+        self._next_reference_try = 0.0
         self._signal_problem_text: str | None = None
         self._cpu_mark = (0.0, 0.0)
+        self._started_at = utc_iso()
         #: end of the captured period -> its state handed to the publisher, seconds
         self._latencies: list[float] = []
+        # the reference managed live (learning, commands, fit)
+        self.jobs = learner.ReferenceJobs()
+        self._rec: Recording | None = None
+        self._learn_next_try = 0.0
+        self._learn_wait = cfg.reference.retry_s
+        self._learn_failure: str | None = None
+        #: a direction chosen while there was no reference: given to the next one learned
+        self._pending_direction: str | None = None
+        self._learn_why = "command"
+        self._job_direction = "unknown"
+        self.fit: FitWatch | None = None
+        self._next_fit = 0.0
+        self._stale_reported = False
+        self._status_sent: dict[str, Any] | None = None
+        self._status_since = utc_iso()
 
     # -- signals -------------------------------------------------------------------------
 
@@ -143,6 +226,11 @@ class Service:
         t = os.times()
         self._cpu_mark = (t.user + t.system, 0.0)   # start-up (imports) is not steady state
         self.publisher = self.publisher_factory(self.cfg)
+        # before the connection is even made: no previous run's values shown as current
+        # (the publisher sends these retained values before availability online)
+        self.publisher.publish_state(Estimate.unknown("starting"), status="starting")
+        self.publisher.publish_stats(self.stats(0.0))
+        self._publish_status()
         self.publisher.start()
         self.notifier.status("starting")
         next_state = next_stats = t_start
@@ -157,17 +245,29 @@ class Service:
                     self._sig_reload = False     # signals until here join this reload
                     self._reload.clear()
                     self._do_reload()
-                if self.analyzer is not None and now >= self._next_reference_check:
+                self._take_job_results()
+                self._take_commands()
+                if self.analyzer is not None and now >= self._next_reference_check \
+                        and not self.jobs.busy:
                     self._next_reference_check = now + REFERENCE_POLL_S
                     if self._reference_signature() != self._reference_sig:
                         log.info("the reference file changed; reading it again")
                         self.analyzer = None
-                if self.analyzer is None and not self._load_reference():
-                    self._pause(REFERENCE_POLL_S)
+                        self._next_reference_try = 0.0
+                if self.analyzer is None and now >= self._next_reference_try \
+                        and not self.jobs.busy:
+                    self._next_reference_try = now + REFERENCE_POLL_S
+                    self._load_reference()
+                self._maybe_learn(now)
+                self._publish_status()
+                if self.analyzer is None and self._rec is None and not self._learn_allowed():
+                    self._close_audio()     # nothing reads it while we wait: no xruns
+                    self._pause(min(REFERENCE_POLL_S, 0.25))
                     continue
                 if self.audio is None:
                     self._open_audio()
                     last_pulse_t = self.clock()
+                assert self.audio is not None
                 block = self.audio.read_pulse(timeout=0.5)
                 now = self.clock()
                 if block is None:
@@ -180,6 +280,19 @@ class Service:
                         last_pulse_t = now
                     continue
                 last_pulse_t = now
+                if self._rec is not None:
+                    self._record(block)
+                if self.analyzer is None:
+                    # learning a first reference: pulses flow, nothing to estimate yet
+                    self.counters.pulses_processed += 1
+                    self.notifier.watchdog()
+                    if now >= next_state:
+                        self._publish_unknown()
+                        next_state = now + self.cfg.mqtt.publish_interval_s
+                    if now >= next_stats:
+                        self.publisher.publish_stats(self.stats(now - t_start))
+                        next_stats = now + self.cfg.mqtt.stats_interval_s
+                    continue
                 try:
                     estimate = self.analyzer.push(block.samples, block.start_sample)
                 except BladesonarError as exc:
@@ -196,9 +309,16 @@ class Service:
                     self.notifier.ready(self._status_line(estimate))
                     log.info("running: %s", self._status_line(estimate))
                 self.notifier.watchdog()
+                if self._rec is not None:
+                    self._rec.rotations[estimate.rotation or "other"] += 1
+                if now >= self._next_fit:
+                    self._next_fit = now + FIT_SAMPLE_S
+                    self._sample_fit(now)
                 changed = self._events(estimate)
                 if changed or now >= next_state:
-                    self.publisher.publish_state({**estimate, "status": "ok"})
+                    status, detail = self._status()
+                    self.publisher.publish_state(estimate, status=status,
+                                                 detail=None if status == "ok" else detail)
                     if block.captured_at is not None:
                         self._latencies.append(self.clock() - block.captured_at)
                     self.notifier.status(self._status_line(estimate))
@@ -209,6 +329,7 @@ class Service:
         finally:
             self.notifier.stopping()
             self._close_audio()
+            self.jobs.close()
             if self.publisher is not None:
                 try:
                     self.publisher.publish_stats(self.stats(self.clock() - t_start))
@@ -218,16 +339,19 @@ class Service:
 
     # -- pieces --------------------------------------------------------------------------
 
-    def _status_line(self, est: dict[str, Any]) -> str:
-        rate = est.get("rate_hz")
-        rate_s = f"{rate:.3f} Hz" if isinstance(rate, (int, float)) else "rate unknown"
-        rot = est.get("rotation") or est.get("direction")
-        return f"{rot}, {rate_s}, confidence {est.get('confidence', 0):.2f}"
+    def _status_line(self, est: Estimate) -> str:
+        rate = est.rate_hz
+        rate_s = f"{rate:.3f} Hz" if rate is not None else "rate unknown"
+        rot = est.rotation or est.direction.value
+        status, _ = self._status()
+        tail = f" ({status.replace('_', ' ')})" if status != "ok" else ""
+        return f"{rot}, {rate_s}, confidence {est.confidence:.2f}{tail}"
 
-    def _events(self, est: dict[str, Any]) -> bool:
+    def _events(self, est: Estimate) -> bool:
         """Publish the motion events the analysis confirmed (started, stopped, reversed:
         transitions.py decides them, the same code as ``analyze --track``); True if any,
         or if this is the first estimate."""
+        assert self.analyzer is not None and self.publisher is not None
         first = self._last_state is None
         self._last_state = est
         fired = first
@@ -236,18 +360,22 @@ class Service:
             fired = True
         return fired
 
+    def _publish_unknown(self) -> None:
+        """The state while nothing can be estimated (no reference, no signal)."""
+        assert self.publisher is not None
+        status, detail = self._status()
+        ref_id = self.reference.meta.get("id") if self.reference is not None else None
+        self.publisher.publish_state(Estimate.unknown(detail or status, reference=ref_id),
+                                     status=status, detail=detail)
+
     def _signal_problem(self, problem: str) -> None:
         """The capture holds no usable pulse train: say so once, reopen the audio later."""
         self.counters.signal_errors += 1
         if problem != self._signal_problem_text:
             self._signal_problem_text = problem
             log.error("no usable echo: %s; retrying in %.0f s", problem, SIGNAL_RETRY_S)
-            self.publisher.publish_state({"direction": "unknown", "rotation": None,
-                                          "rate_hz": None, "rpm": None,
-                                          "relative_rate": None, "confidence": 0.0,
-                                          "rotating": None,
-                                          "reference": self.reference.meta.get("id"),
-                                          "status": "no_signal", "detail": problem})
+            self._publish_unknown()
+            self._publish_status()
         self.notifier.status(f"no usable echo: {problem}")
         self._close_audio()
         self._last_state = None
@@ -265,6 +393,7 @@ class Service:
         """Load and check the reference; a missing or invalid one is a published status
         (never an exit: under systemd that would be a restart loop) and is retried when
         the file changes or on SIGHUP."""
+        assert self.publisher is not None
         sig = self._reference_signature()
         if self._reference_problem is not None and sig == self._reference_sig:
             return False    # same file as the failed attempt: nothing new to read
@@ -277,32 +406,41 @@ class Service:
             if not isinstance(exc, BladesonarError):
                 log.exception("the reference could not be used (a bug: please report it)")
             problem = str(exc) or type(exc).__name__
+            self.reference = None
+            self.analyzer = None
+            self.fit = None
             if problem != self._reference_problem:
                 self._reference_problem = problem
+                self._reference_missing = missing
                 log.error("%s", problem)
                 self.notifier.status(f"waiting for a reference: {problem}" if missing
                                      else f"reference invalid: {problem}")
                 status = "reference_missing" if missing else "reference_invalid"
                 self.publisher.publish_event(status, detail=problem)
-                self.publisher.publish_state({"direction": "unknown", "rotation": None,
-                                              "rate_hz": None, "rpm": None,
-                                              "relative_rate": None, "confidence": 0.0,
-                                              "rotating": None, "reference": None,
-                                              "status": status,
-                                              **({} if missing else {"detail": problem})})
-            self.reference = None
-            self._close_audio()     # nothing reads it while we wait: no xruns piling up
+                self._publish_status()
+                self._publish_unknown()
             return False
         self._reference_problem = None
+        self._reference_missing = False
         self.reference = ref
         self.analyzer = analyzer
+        self._last_state = None
+        q = float(ref.meta.get("quality") or 0.0)
+        r = self.cfg.reference
+        self.fit = FitWatch(q, stale_fit=r.stale_fit, span_s=r.stale_after_s) if q > 0 \
+            else None
+        self._stale_reported = False
+        if self._pending_direction is not None \
+                and ref.meta.get("direction") == self._pending_direction:
+            self._pending_direction = None
         log.info("reference loaded: %s (%.3f Hz, %s)", ref.meta.get("id"),
                  ref.meta.get("rate_hz", float("nan")), ref.meta.get("direction"))
         return True
 
     def _open_audio(self) -> None:
         # a new capture stream is a new time base: align and warm up from scratch
-        self.analyzer = self.analyzer_factory(self.cfg, self.reference)
+        if self.reference is not None:
+            self.analyzer = self.analyzer_factory(self.cfg, self.reference)
         self.audio = self.audio_factory(self.cfg)
         self.audio.start()
 
@@ -317,6 +455,242 @@ class Service:
             except Exception:  # noqa: BLE001 - closing must not mask the real error
                 log.exception("closing the audio path failed")
             self.audio = None
+        if self._rec is not None:
+            self._rec.next_sample = None     # a new stream: the recording starts afresh
+            self._rec.blocks, self._rec.have = [], 0
+
+    # -- the reference, managed live -------------------------------------------------------
+
+    def _status(self) -> tuple[str, str | None]:
+        """(status, detail) as published: see messages.STATUSES."""
+        if self._rec is not None or self.jobs.busy == "learn":
+            if self._rec is not None:
+                return "learning", (f"recording {self.cfg.reference.learn_seconds:g} s of "
+                                    "the turning fan for a reference")
+            return "learning", "folding the recording into a reference"
+        if self.reference is None:
+            if self._reference_problem is None:
+                return "starting", None
+            if self._learn_failure is not None and self._learn_allowed():
+                return "learning", (f"waiting for a steady rotation to learn a reference "
+                                    f"(last try: {self._learn_failure})")
+            return ("reference_missing" if self._reference_missing else "reference_invalid",
+                    self._reference_problem)
+        if self._signal_problem_text is not None:
+            return "no_signal", self._signal_problem_text
+        if self.fit is not None and self.fit.stale:
+            f = self.fit.fit
+            return "reference_stale", (
+                f"the reference fits the room at {f:.2f} of what it promised over the last "
+                f"{self.fit.moving_s:.0f} s of turning (stale below "
+                f"{self.cfg.reference.stale_fit:g}): the device, the fan or the room changed; "
+                "learn a new reference")
+        if self._last_state is None and not self._ready_sent:
+            return "starting", None
+        return "ok", None
+
+    def _publish_status(self) -> None:
+        """The status message, when anything in it changed (the fit by 0.03 or more)."""
+        if self.publisher is None:
+            return
+        status, detail = self._status()
+        ref = self.reference
+        fit = self.fit.fit if self.fit is not None else None
+        fields: dict[str, Any] = {
+            "status": status, "detail": detail,
+            "reference": ref.meta.get("id") if ref is not None else None,
+            "reference_direction": (ref.meta.get("direction") if ref is not None
+                                    else self._pending_direction),
+            "reference_rate_hz": ref.meta.get("rate_hz") if ref is not None else None,
+            "fit": None if fit is None else round(fit, 2),
+            "learning": (self._rec.why if self._rec is not None else
+                         self._learn_why if self.jobs.busy == "learn" else None),
+        }
+        last = self._status_sent
+        if last is not None:
+            same = all(last.get(k) == v for k, v in fields.items() if k != "fit")
+            f0, f1 = last.get("fit"), fields["fit"]
+            fit_same = (f0 is None) == (f1 is None) and (f0 is None or abs(f0 - f1) < 0.03)
+            if same and fit_same:
+                return
+            if last.get("status") != status:
+                self._status_since = utc_iso()
+        fields["since"] = self._status_since
+        self._status_sent = fields
+        self.publisher.publish_status(fields)
+
+    def _learn_allowed(self) -> bool:
+        """Whether the daemon learns by itself now (no reference, or a bad one)."""
+        r = self.cfg.reference
+        if self.reference is None:
+            if self._reference_problem is None:
+                return False
+            return r.auto_learn if self._reference_missing else r.auto_relearn
+        return r.auto_relearn and self.fit is not None and self.fit.stale
+
+    def _maybe_learn(self, now: float) -> None:
+        """Zero-config: start recording a reference when one is needed and due."""
+        if self._rec is not None or self.jobs.busy or now < self._learn_next_try:
+            return
+        if not self._learn_allowed():
+            return
+        if self.reference is not None:
+            # re-learning a stale reference: only from a fan seen turning now
+            st = self._last_state
+            if st is None or st.rotating is not True:
+                return
+        self._start_recording("auto" if self.reference is None else "relearn")
+
+    def _start_recording(self, why: str) -> None:
+        need = int(round(self.cfg.reference.learn_seconds * self.cfg.audio.sample_rate))
+        self._rec = Recording(why=why, need=need)
+        log.info("learning a reference (%s): recording %g s of the fan", why,
+                 self.cfg.reference.learn_seconds)
+        self._publish_status()
+
+    def _record(self, block: PulseBlock) -> None:
+        rec = self._rec
+        assert rec is not None
+        if self._last_state is not None and self._last_state.direction.value == "stopped" \
+                and rec.why == "relearn":
+            log.info("the fan stopped while recording a reference; trying again later")
+            self._rec = None
+            self._learn_next_try = self.clock() + self._learn_wait
+            return
+        if not rec.add(block):
+            return
+        ref_known = self.reference is not None and \
+            self.reference.meta.get("direction") in ("cw", "ccw")
+        direction = self._pending_direction or rec.direction(ref_known)
+        x = rec.samples()
+        self._rec = None
+        if not self.jobs.submit("learn", learner.learn, x, self.cfg, direction,
+                                self.cfg.reference_path):
+            log.warning("a reference job is running; the recording is dropped")
+            return
+        self._learn_why = rec.why
+        self._publish_status()
+
+    def _take_commands(self) -> None:
+        assert self.publisher is not None
+        for cmd in self.publisher.take_commands():
+            self._command(cmd)
+
+    def _command(self, cmd: Command) -> None:
+        busy = self.jobs.busy
+        if cmd.name == "learn":
+            if self._rec is not None or busy:
+                log.info("command learn ignored: already %s",
+                         "learning" if self._rec is not None or busy == "learn" else busy)
+                return
+            self._start_recording("command")
+        elif cmd.name == "forget":
+            if busy:
+                log.info("command forget ignored: %s is running", busy)
+                return
+            self._rec = None
+            self.jobs.submit("forget", learner.forget, self.cfg.reference_path)
+        elif cmd.name == "direction":
+            d = cmd.value or "unknown"
+            if self.reference is None:
+                self._pending_direction = d if d != "unknown" else None
+                log.info("reference direction %s kept for the next reference learned", d)
+                self._publish_status()
+                return
+            if busy:
+                log.info("command direction ignored: %s is running", busy)
+                return
+            if self.reference.meta.get("direction") == d:
+                return
+            self.jobs.submit("direction", learner.set_direction, self.cfg.reference_path, d)
+            self._job_direction = d
+
+    def _take_job_results(self) -> None:
+        assert self.publisher is not None
+        for res in self.jobs.poll():
+            if res.name == "learn":
+                self._learned(res)
+            elif res.name == "forget":
+                if res.ok:
+                    log.info("reference forgotten%s", f" (kept as {res.value})"
+                             if res.value else "")
+                    self.publisher.publish_event("reference_forgotten", detail=res.value)
+                    self.analyzer = None
+                    self.reference = None
+                    self.fit = None
+                    self._reference_problem = None
+                    self._next_reference_try = 0.0
+                    self._learn_next_try = 0.0
+                    self._learn_wait = self.cfg.reference.retry_s
+                else:
+                    log.error("forgetting the reference failed: %s", res.error)
+            elif res.name == "direction":
+                d = self._job_direction
+                if res.ok and self.reference is not None:
+                    # the table is unchanged: the running analysis takes the direction at
+                    # once (its reference is this object), no re-alignment
+                    self.reference.meta["direction"] = d
+                    self.reference.meta["id"] = str(res.value)[:12]
+                    if self.analyzer is not None:
+                        self.analyzer.reference_id = self.reference.meta["id"]
+                    self._reference_sig = self._reference_signature()
+                    log.info("reference direction set to %s (reference %s)", d,
+                             self.reference.meta["id"])
+                    self.publisher.publish_event("reference_direction_set", direction=d,
+                                                 reference=self.reference.meta["id"])
+                elif not res.ok:
+                    log.error("setting the reference direction failed: %s", res.error)
+                    self.publisher.publish_event("reference_learn_failed", detail=res.error)
+            self._publish_status()
+
+    def _learned(self, res: learner.JobResult) -> None:
+        assert self.publisher is not None
+        why = self._learn_why
+        if res.ok:
+            info = res.value
+            self.counters.references_learned += 1
+            self._learn_failure = None
+            self._learn_wait = self.cfg.reference.retry_s
+            log.info("reference learned (%s): %s, %.3f Hz, quality %.2f, direction %s", why,
+                     info.get("id"), info.get("rate_hz", float("nan")),
+                     info.get("quality", float("nan")), info.get("direction"))
+            self.publisher.publish_event(
+                "reference_learned", reference=info.get("id"), rate_hz=info.get("rate_hz"),
+                quality=info.get("quality"), direction=info.get("direction"), source=why,
+                warnings=info.get("warnings") or [])
+            # the file watch path: read back what was written, new analyzer, re-align
+            self.analyzer = None
+            self._reference_problem = None
+            self._next_reference_try = 0.0
+            return
+        self.counters.learn_failures += 1
+        self._learn_failure = res.error
+        log.warning("learning a reference failed (%s): %s; next automatic try in %.0f s",
+                    why, res.error, self._learn_wait)
+        self.publisher.publish_event("reference_learn_failed", detail=res.error, source=why)
+        self._learn_next_try = self.clock() + self._learn_wait
+        self._learn_wait = min(2.0 * self._learn_wait, self.cfg.reference.retry_max_s)
+
+    def _sample_fit(self, now: float) -> None:
+        """The reference fit watch, once a second; a stale reference is an event once."""
+        if self.fit is None or self.analyzer is None:
+            return
+        got = self.analyzer.fit_sample()
+        if got is None:
+            return
+        moving, quality = got
+        was = self.fit.stale
+        self.fit.update(now, moving, quality)
+        if self.fit.stale and not was and not self._stale_reported:
+            self._stale_reported = True
+            _, detail = self._status()
+            log.warning("%s", detail)
+            assert self.publisher is not None
+            self.publisher.publish_event("reference_stale", detail=detail,
+                                         fit=round(self.fit.fit or 0.0, 3))
+        elif was and not self.fit.stale:
+            self._stale_reported = False
+            log.info("the reference fits the room again (fit %.2f)", self.fit.fit or 0.0)
 
     def _do_reload(self) -> None:
         """SIGHUP: validate the new config first; on any error keep the old one running."""
@@ -333,8 +707,11 @@ class Service:
         if (old.audio, old.waveform, old.sim) != (new.audio, new.waveform, new.sim):
             self._close_audio()
         if old.mqtt != new.mqtt or old.device_id != new.device_id:
+            assert self.publisher is not None
             self.publisher.close()
             self.publisher = self.publisher_factory(new)
+            self._status_sent = None
+            self._publish_status()
             self.publisher.start()
         # Only what the analysis depends on restarts it: a reload that changes the broker
         # or nothing at all (a reload storm) keeps tracking, so publishing never pauses.
@@ -351,6 +728,8 @@ class Service:
         # The reference is re-read (a new one may have been recorded).
         self.analyzer = None
         self._reference_problem = None
+        self._next_reference_try = 0.0
+        self._learn_next_try = 0.0
         log.info("configuration reloaded from %s", self.config_path)
         if self._ready_sent:
             # the reload is done (systemctl reload returns); re-alignment shows in STATUS
@@ -370,6 +749,7 @@ class Service:
         span = uptime_s - prev_up
         lat, self._latencies = self._latencies, []
         return {
+            "started_at": self._started_at,
             "uptime_s": round(uptime_s, 1),
             "cpu_share": round((cpu - prev_cpu) / span, 4) if span > 0 else None,
             "pulses_processed": self.counters.pulses_processed,
@@ -385,5 +765,10 @@ class Service:
             "reloads": self.counters.reloads,
             "reload_errors": self.counters.reload_errors,
             "signal_errors": self.counters.signal_errors,
+            "references_learned": self.counters.references_learned,
+            "learn_failures": self.counters.learn_failures,
+            "commands": pub.get("commands", 0),
+            "commands_refused": pub.get("commands_refused", 0),
+            "fit": None if self.fit is None or self.fit.fit is None else round(self.fit.fit, 3),
             "audio": audio,
         }
