@@ -314,9 +314,16 @@ class Service:
                 if now >= self._next_fit:
                     self._next_fit = now + FIT_SAMPLE_S
                     self._sample_fit(now)
-                changed = self._events(estimate)
+                stale = self.fit is not None and self.fit.stale
+                changed = self._events(estimate, publish=not stale)
                 if changed or now >= next_state:
                     status, detail = self._status()
+                    if stale:
+                        # a reference that no longer fits gives confident wrong answers
+                        # (measured: a sensor moved by 20 cm): none is published
+                        estimate = Estimate.unknown(
+                            f"the reference no longer fits the room: {detail}",
+                            reference=estimate.reference)
                     self.publisher.publish_state(estimate, status=status,
                                                  detail=None if status == "ok" else detail)
                     if block.captured_at is not None:
@@ -347,17 +354,21 @@ class Service:
         tail = f" ({status.replace('_', ' ')})" if status != "ok" else ""
         return f"{rot}, {rate_s}, confidence {est.confidence:.2f}{tail}"
 
-    def _events(self, est: Estimate) -> bool:
+    def _events(self, est: Estimate, publish: bool = True) -> bool:
         """Publish the motion events the analysis confirmed (started, stopped, reversed:
         transitions.py decides them, the same code as ``analyze --track``); True if any,
-        or if this is the first estimate."""
+        or if this is the first estimate. With ``publish`` false (a stale reference) they
+        are dropped."""
         assert self.analyzer is not None and self.publisher is not None
         first = self._last_state is None
         self._last_state = est
         fired = first
         for ev in self.analyzer.take_events():
-            self.publisher.publish_event(ev.kind, **ev.details())
-            fired = True
+            if publish:
+                self.publisher.publish_event(ev.kind, **ev.details())
+                fired = True
+            else:
+                log.debug("event %s not published: the reference is stale", ev.kind)
         return fired
 
     def _publish_unknown(self) -> None:
