@@ -182,11 +182,15 @@ HA_SCHEMA = {
     "select": (_COMMON | {"command_template", "command_topic", "optimistic", "options",
                           "retain", "state_topic", "value_template"},
                {"command_topic", "options"}),
+    # MQTT device triggers (integrations/device_trigger.mqtt): not entities
+    "device_automation": ({"automation_type", "device", "encoding", "origin", "payload",
+                           "qos", "subtype", "topic", "type", "value_template"},
+                          {"automation_type", "device", "subtype", "topic", "type"}),
 }
 #: entity_category values each platform allows (sensors cannot be "config")
 HA_CATEGORIES = {"sensor": {"diagnostic"}, "binary_sensor": {"diagnostic"},
                  "event": {"diagnostic"}, "button": {"config", "diagnostic"},
-                 "select": {"config", "diagnostic"}}
+                 "select": {"config", "diagnostic"}, "device_automation": set()}
 HA_DEVICE_KEYS = {"configuration_url", "connections", "hw_version", "identifiers",
                   "manufacturer", "model", "model_id", "name", "serial_number",
                   "suggested_area", "sw_version", "via_device"}
@@ -195,8 +199,8 @@ HA_STATE_CLASSES = {"measurement", "total", "total_increasing"}
 #: Home Assistant's own state words: no entity may use them as a value of its own
 HA_RESERVED = {"unknown", "unavailable"}
 
-TOPIC_RE = re.compile(
-    r"homeassistant/(sensor|binary_sensor|event|button|select)/fan-1/([a-zA-Z0-9_-]+)/config")
+TOPIC_RE = re.compile(r"homeassistant/(sensor|binary_sensor|event|button|select|"
+                      r"device_automation)/fan-1/([a-zA-Z0-9_-]+)/config")
 
 
 def discovery(**mqtt):
@@ -253,6 +257,9 @@ def test_discovery_topics_ids_and_availability():
             assert (g.group(1), g.group(2)) == ("sensor", "uptime")
             continue
         c = json.loads(m.encode())
+        if g.group(1) == "device_automation":
+            assert c["topic"] == t.event and c["automation_type"] == "trigger"
+            continue
         assert c["unique_id"] == f"bladesonar_fan-1_{g.group(2)}"
         ids.add(c["unique_id"])
         assert c["availability_topic"] == t.availability
@@ -264,13 +271,23 @@ def test_discovery_topics_ids_and_availability():
                                "model": "Pulsed-sonar rotation sensor",
                                "sw_version": __version__}
         assert c["origin"]["name"] == "bladesonar"
-    assert len(ids) == len(msgs) - 1
+    assert len(ids) == len(msgs) - 1 - 3
+
+
+def test_device_triggers_fire_on_their_event_only():
+    c = configs()
+    trig = {k[1]: v for k, v in c.items() if k[0] == "device_automation"}
+    assert set(trig) == {"motion_started", "motion_stopped", "motion_reversed"}
+    for name, x in trig.items():
+        for kind in M.EVENT_KINDS:
+            got = render(x["value_template"], M.event_payload(kind, {}, t=T0))
+            assert (got == x["payload"]) == (kind == name.split("_", 1)[1]), (name, kind)
 
 
 def test_device_name_from_config_and_entity_names_do_not_repeat_it():
     c = configs(device_name="Living room fan")
     assert {x["device"]["name"] for x in c.values()} == {"Living room fan"}
-    names = [x["name"] for x in c.values()]
+    names = [x["name"] for x in c.values() if "name" in x]
     assert len(set(names)) == len(names)
     assert not any("fan 1" in n.lower() or "bladesonar" in n.lower() for n in names)
     assert M.friendly_name("living-room_fan") == "Living room fan"
@@ -313,13 +330,16 @@ def test_discovery_entities():
 def test_commands_off_leaves_out_the_command_entities():
     c = configs(commands=False)
     assert not any(k[0] in ("button", "select") for k in c)
+    assert ("device_automation", "motion_reversed") in c
     assert ("sensor", "status") in c
 
 
 def test_discovery_follows_the_prefixes():
     msgs = discovery(discovery_prefix="ha", topic_prefix="home")
     assert all(t.startswith("ha/") for t in msgs)
-    assert all(m.payload["availability_topic"] == "home/fan-1/availability"
+    assert all(m.payload.get("availability_topic", "home/fan-1/availability")
+               == "home/fan-1/availability" and
+               m.payload.get("topic", "home/fan-1/event") == "home/fan-1/event"
                for m in msgs.values() if m.payload is not None)
 
 

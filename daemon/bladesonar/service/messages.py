@@ -460,8 +460,9 @@ def device_block(cfg: Any) -> dict[str, Any]:
 
 def discovery_messages(cfg: Any, topics: Topics | None = None) -> list[Message]:
     """Home Assistant discovery: one retained config per entity, at
-    ``<discovery_prefix>/<component>/<node_id>/<object_id>/config``, and an empty retained
-    config for each retired entity (which removes it).
+    ``<discovery_prefix>/<component>/<node_id>/<object_id>/config``, one device trigger
+    per motion event (``device_automation/<node_id>/motion_<kind>``), and an empty
+    retained config for each retired entity (which removes it).
 
     Every entity reads the state, status, event or stats topic through a
     ``value_template``, is wired to the availability topic, and has a ``unique_id`` of
@@ -496,6 +497,14 @@ def discovery_messages(cfg: Any, topics: Topics | None = None) -> list[Message]:
         conf["origin"] = origin
         out.append(Message(f"{topics.discovery_prefix}/{component}/{node}/{object_id}/config",
                            conf, qos=1, retain=True))
+    # device triggers (Home Assistant's automation editor: "Device" -> "reversed"): MQTT
+    # device automations on the event topic, one per motion event
+    for kind in MOTION_EVENTS:
+        out.append(Message(
+            f"{topics.discovery_prefix}/device_automation/{node}/motion_{kind}/config",
+            {"automation_type": "trigger", "topic": topics.event, "type": kind,
+             "subtype": "fan", "payload": kind, "value_template": "{{ value_json.kind }}",
+             "qos": 1, "device": device, "origin": origin}, qos=1, retain=True))
     for component, object_id in _RETIRED:
         out.append(Message(f"{topics.discovery_prefix}/{component}/{node}/{object_id}/config",
                            None, qos=1, retain=True))
