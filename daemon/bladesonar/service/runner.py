@@ -423,9 +423,15 @@ class Service:
             if problem != self._reference_problem:
                 self._reference_problem = problem
                 self._reference_missing = missing
-                log.error("%s", problem)
-                self.notifier.status(f"waiting for a reference: {problem}" if missing
-                                     else f"reference invalid: {problem}")
+                if self._learn_allowed():
+                    log.info("%s; learning one from the turning fan (reference.%s)",
+                             problem.split("; make one")[0],
+                             "auto_learn" if missing else "auto_relearn")
+                    self.notifier.status("learning a reference from the turning fan")
+                else:
+                    log.error("%s", problem)
+                    self.notifier.status(f"waiting for a reference: {problem}" if missing
+                                         else f"reference invalid: {problem}")
                 status = "reference_missing" if missing else "reference_invalid"
                 self.publisher.publish_event(status, detail=problem)
                 self._publish_status()
