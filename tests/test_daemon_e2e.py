@@ -114,7 +114,8 @@ def test_missing_reference_is_a_published_status_then_picked_up_on_sighup(
     once one is stored, SIGHUP brings it up; SIGTERM stops it cleanly."""
     cfg = write_config(tmp_path / "cfg.yaml", tmp_path / "state", audio={"backend": "sim"},
                        sim={"schedule": f"ccw:{RATE}:60", "realtime": True, "seed": 4},
-                       daemon={"window_s": 3}, mqtt={"publish_interval_s": 1})
+                       daemon={"window_s": 3}, mqtt={"publish_interval_s": 1},
+                       reference={"auto_learn": False})   # (zero-config: elsewhere)
     notify = NotifySocket(tmp_path / "notify.sock")
     proc = start_daemon(cfg, {**__import__("os").environ}, notify, tmp_path / "daemon.log")
     try:
