@@ -177,6 +177,8 @@ class Service:
         self._job_direction = "unknown"
         self.fit: FitWatch | None = None
         self._next_fit = 0.0
+        #: the motion meter's verdict at the last fit sample (the fan moves)
+        self._moving = False
         self._stale_reported = False
         self._status_sent: dict[str, Any] | None = None
         self._status_since = utc_iso()
@@ -551,11 +553,10 @@ class Service:
             return
         if not self._learn_allowed():
             return
-        if self.reference is not None:
-            # re-learning a stale reference: only from a fan seen turning now
-            st = self._last_state
-            if st is None or st.rotating is not True:
-                return
+        if self.reference is not None and not self._moving:
+            # re-learning a stale reference: only from a fan seen moving now (the motion
+            # meter: the stale reference's own answers may well be unknown)
+            return
         self._start_recording("auto" if self.reference is None else "relearn")
 
     def _start_recording(self, why: str) -> None:
@@ -568,8 +569,7 @@ class Service:
     def _record(self, block: PulseBlock) -> None:
         rec = self._rec
         assert rec is not None
-        if self._last_state is not None and self._last_state.direction.value == "stopped" \
-                and rec.why == "relearn":
+        if rec.why == "relearn" and not self._moving:
             log.info("the fan stopped while recording a reference; trying again later")
             self._rec = None
             self._learn_next_try = self.clock() + self._learn_wait
@@ -696,6 +696,7 @@ class Service:
         if got is None:
             return
         moving, quality = got
+        self._moving = moving
         was = self.fit.stale
         self.fit.update(now, moving, quality)
         if self.fit.stale and not was and not self._stale_reported:
