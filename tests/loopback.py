@@ -95,7 +95,7 @@ class RoomProcess:
         self._log.close()
         return self.log.read_text(encoding="utf-8")
 
-    def __enter__(self) -> "RoomProcess":
+    def __enter__(self) -> RoomProcess:
         return self
 
     def __exit__(self, *exc: Any) -> None:

@@ -11,8 +11,7 @@ import pytest
 from bladesonar.dsp import device as dev
 from bladesonar.dsp import rangescale
 from bladesonar.dsp.gate import Gate
-from bladesonar.dsp.pulses import CLIPPED, OK, PulseAligner, AlignedPulses, \
-    RecordingCheck, align
+from bladesonar.dsp.pulses import CLIPPED, OK, AlignedPulses, PulseAligner, RecordingCheck, align
 from synth_pulses import add_pulse, pulse_train
 
 PRI = 1297
@@ -122,7 +121,8 @@ def test_range_scale_of_a_stretched_room(s):
     L, start = 780, 490
     ref, now = np.zeros(L), np.zeros(L)
     rng = np.random.default_rng(3)
-    for d, a in zip(rng.uniform(start + 20, start + L - 60, 25), rng.uniform(0.2, 1, 25)):
+    delays, amps = rng.uniform(start + 20, start + L - 60, 25), rng.uniform(0.2, 1, 25)
+    for d, a in zip(delays, amps, strict=True):
         add_pulse(ref, d - start, a)
         add_pulse(now, d / s - start, a)
     est, corr = rangescale.estimate_scale(ref, now, start)

@@ -25,7 +25,7 @@ def _reference(n=500, noise=0.003, kind="envelope", seed=0):
 def _probe(phases, noise=0.003, jitter=0.0, seed=1):
     rng = np.random.default_rng(seed)
     j = jitter * rng.uniform(-1, 1, len(phases))
-    return np.array([fan_pulse(p, L, jitter=jj) for p, jj in zip(phases, j)]) + \
+    return np.array([fan_pulse(p, L, jitter=jj) for p, jj in zip(phases, j, strict=True)]) + \
         noise * rng.standard_normal((len(phases), L))
 
 

@@ -6,8 +6,18 @@ import numpy as np
 import pytest
 
 from bladesonar.dsp.gate import Gate, delay_to_range, make_gate, range_to_delay
-from bladesonar.dsp.pulses import DROPOUT, MISSING, OK, WARMUP, AlignedPulses, \
-    PulseAligner, align, check_recording, count_dropped, end_of_stream
+from bladesonar.dsp.pulses import (
+    DROPOUT,
+    MISSING,
+    OK,
+    WARMUP,
+    AlignedPulses,
+    PulseAligner,
+    align,
+    check_recording,
+    count_dropped,
+    end_of_stream,
+)
 from bladesonar.errors import InputError
 from synth_pulses import add_pulse, pulse_train
 
@@ -87,7 +97,7 @@ def test_dropout_is_reported_and_later_pulses_stay_aligned():
     cut_at, cut = int(edges[30] + 700), 411          # samples lost inside pulse 30
     y = np.concatenate([x[:cut_at], x[cut_at + cut:]])
     a = align(y, PRI, _gate())
-    st = dict(zip(a.index.tolist(), a.status.tolist()))
+    st = dict(zip(a.index.tolist(), a.status.tolist(), strict=True))
     assert st[30] in (DROPOUT, MISSING)
     assert all(st[k] == OK for k in range(1, 29))
     later = [k for k in a.index if k > 31 and st[int(k)] == OK]

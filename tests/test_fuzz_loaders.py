@@ -28,12 +28,11 @@ from bladesonar.analysis import build_reference, new_analyzer
 from bladesonar.errors import BladesonarError, ConfigError, InputError, ReferenceFileError
 from bladesonar.io.reference import checksum, parse_reference, reference_bytes
 from bladesonar.io.safe_yaml import parse_yaml
-from bladesonar.io.wav import read_wav
 from bladesonar.io.scene_file import load_scene
+from bladesonar.io.wav import read_wav
 from bladesonar.sim.render import simulate
 from bladesonar.sim.scene import Scene
 from bladesonar.sim.schedule import Schedule
-
 from loopback import SCENE
 
 _N = os.environ.get("BLADESONAR_FUZZ_EXAMPLES")
@@ -256,7 +255,7 @@ def test_any_config_values_validate_or_give_one_error(values):
     except ConfigError as exc:
         one_line(exc)
         return
-    for key, f in config.iter_fields():
+    for key, _ in config.iter_fields():
         v = cfg
         for part in key.split("."):
             v = getattr(v, part)

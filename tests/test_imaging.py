@@ -209,7 +209,7 @@ def _mismatch(a: np.ndarray, b: np.ndarray) -> float:
     sample (and back); large when one has echoes the other lacks."""
     tot, n = 0.0, 0
     for ra, rb in ((a, b), (b, a)):
-        for x, y in zip(ra, rb):
+        for x, y in zip(ra, rb, strict=True):
             x, y = x[np.isfinite(x)], y[np.isfinite(y)]
             for v in x:
                 tot += np.min(np.abs(y - v)) if len(y) else 1.0

@@ -64,7 +64,8 @@ def _run_all(jobs: list[tuple[list[str], int, str]]) -> tuple[list[str], list[Me
     env = _env()
     with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as ex:
         results = list(ex.map(lambda j: run_limited(j[0], cwd=ROOT, env=env), jobs))
-    problems = [p for (args, rc, cmd), m in zip(jobs, results) for p in _problems(m, rc, cmd)]
+    problems = [p for (_, rc, cmd), m in zip(jobs, results, strict=True)
+                for p in _problems(m, rc, cmd)]
     return problems, results
 
 
@@ -164,7 +165,7 @@ def test_the_daemon_publishes_an_invalid_reference_and_keeps_running(corpus, tmp
     with ThreadPoolExecutor(max_workers=2) as ex:
         results = list(ex.map(lambda a: run_limited(a, cwd=ROOT, env=env), jobs))
     bad = []
-    for name, m in zip(names, results):
+    for name, m in zip(names, results, strict=True):
         msgs = [json.loads(ln) for ln in m.stdout.splitlines() if ln.startswith("{")]
         # (the first state says "starting": nothing known yet, never a previous run's)
         states = [x["payload"] for x in msgs if x["topic"].endswith("/state")

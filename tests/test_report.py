@@ -10,16 +10,27 @@ import pytest
 
 from bladesonar import config
 from bladesonar.cli import main
-from bladesonar.runtime_report import (TRANSITION_TARGETS_S, TRANSITIONS_SCHEDULE, Family,
-                                       Grid, Job, _render, aggregate, aggregate_transitions,
-                                       envelope, jobs, score_transitions, sweep_config,
-                                       transitions_schedule)
 from bladesonar.io.scene_file import load_scene
+from bladesonar.runtime_report import (
+    TRANSITION_TARGETS_S,
+    TRANSITIONS_SCHEDULE,
+    Family,
+    Grid,
+    Job,
+    _render,
+    aggregate,
+    aggregate_transitions,
+    envelope,
+    jobs,
+    score_transitions,
+    sweep_config,
+    transitions_schedule,
+)
 from bladesonar.sim.render import simulate
-
-pytestmark = pytest.mark.slow   # a sweep of simulated trials: outside the fast tier
 from bladesonar.sim.schedule import parse
 from bladesonar.sim.score import truth_events
+
+pytestmark = pytest.mark.slow   # a sweep of simulated trials: outside the fast tier
 
 GRID = {
     "families": [

@@ -28,6 +28,11 @@ def of_kind(p: geometry.Paths, kind: str, wall: int | None = None):
     return p.length_m[m], p.gain[m]
 
 
+def _side(u: np.ndarray, q: np.ndarray) -> float:
+    """Which side of the blade line through the centre (3, 3) along ``u`` the point is on."""
+    return float(np.sign(u[0] * (q[1] - 3) - u[1] * (q[0] - 3)))
+
+
 # ---------------------------------------------------------------- direct blade echo
 
 @pytest.mark.parametrize("deg", [91.0, 95.0, 100.0, 105.0, 109.0])
@@ -79,18 +84,17 @@ def test_one_bounce_paths_obey_fermat():
     (found by brute force along the blade), and it exists exactly where that minimum is
     strictly inside the blade with the image and the sensor on the same side."""
     s = scene(sensor=(1, 2), centre=(3, 3), length=2.6)
-    S, I = np.array([1.0, 2.0]), np.array([-1.0, 2.0])   # image in wall 3 (x = 0)
+    S, img = np.array([1.0, 2.0]), np.array([-1.0, 2.0])   # image in wall 3 (x = 0)
     r = np.linspace(0, 2.6, 260001)
     checked = 0
     for deg in np.arange(0, 360, 3.0):
         u = np.array([math.cos(math.radians(deg)), math.sin(math.radians(deg))])
         X = np.array([3.0, 3.0]) + r[:, None] * u
-        f = np.hypot(*(X - I).T) + np.hypot(*(X - S).T)
+        f = np.hypot(*(X - img).T) + np.hypot(*(X - S).T)
         i = int(np.argmin(f))
-        side = lambda q: np.sign(u[0] * (q[1] - 3) - u[1] * (q[0] - 3))  # noqa: E731
         # the wall leg must cross wall 3 (x = 0, 0 <= y <= 6)
-        y_wall = I[1] + (X[i][1] - I[1]) * (0 - I[0]) / (X[i][0] - I[0])
-        expect = (0 < i < len(r) - 1 and side(S) == side(I) != 0 and 0 <= y_wall <= 6)
+        y_wall = img[1] + (X[i][1] - img[1]) * (0 - img[0]) / (X[i][0] - img[0])
+        expect = (0 < i < len(r) - 1 and _side(u, S) == _side(u, img) != 0 and 0 <= y_wall <= 6)
         L, _ = of_kind(geometry.paths(s, math.radians(deg)), "wall_blade", wall=3)
         assert (len(L) == 1) == expect, deg
         if expect:
@@ -106,13 +110,13 @@ L_ROOM = [[0, 0], [4.5, 0], [4.5, 2.5], [2.5, 2.5], [2.5, 4.0], [0, 4.0]]
 
 def test_wall_echo_only_when_the_foot_is_on_the_wall_segment():
     s = scene(L_ROOM, sensor=(0.25, 0.25), centre=(1.5, 1.5), length=0.5)
-    L, _ = of_kind(geometry.paths(s, 0.0), "wall")
-    walls = dict(zip(geometry.paths(s, 0.0).wall[geometry.paths(s, 0.0).kind == "wall"], L / 2))
+    p = geometry.paths(s, 0.0)
+    walls = dict(zip(p.wall[p.kind == "wall"], p.length_m[p.kind == "wall"] / 2, strict=True))
     # wall 2 (y = 2.5, x 2.5..4.5) and wall 3 (x = 2.5, y 2.5..4): feet off the segments
     assert walls == pytest.approx({0: 0.25, 1: 4.25, 4: 3.75, 5: 0.25})
     s2 = scene(L_ROOM, sensor=(3.0, 0.25), centre=(1.5, 1.5), length=0.5)
     p2 = geometry.paths(s2, 0.0)
-    walls2 = dict(zip(p2.wall[p2.kind == "wall"], p2.length_m[p2.kind == "wall"] / 2))
+    walls2 = dict(zip(p2.wall[p2.kind == "wall"], p2.length_m[p2.kind == "wall"] / 2, strict=True))
     assert walls2 == pytest.approx({0: 0.25, 1: 1.5, 2: 2.25, 5: 3.0})  # wall 4 now off
     # amplitude of a wall echo: one unfolded leg of 2d
     assert p2.gain[(p2.kind == "wall") & (p2.wall == 2)][0] == pytest.approx(0.5 / 4.5)
@@ -123,7 +127,7 @@ def test_a_wall_shadows_a_wall_echo():
     slot = [[0, 0], [6, 0], [6, 6], [0, 6], [0, 4], [3, 4], [3, 3.5], [0, 3.5]]
     s = scene(slot, sensor=(1, 1), centre=(4.5, 1.5), length=0.5)
     p = geometry.paths(s, 0.0)
-    w = dict(zip(p.wall[p.kind == "wall"], p.length_m[p.kind == "wall"] / 2))
+    w = dict(zip(p.wall[p.kind == "wall"], p.length_m[p.kind == "wall"] / 2, strict=True))
     assert 2 not in w                         # top wall y = 6: blocked by the slot
     assert w[6] == pytest.approx(2.5)         # the slot's lower face y = 3.5
     open_room = scene(sensor=(1, 1), centre=(4.5, 1.5), length=0.5)
@@ -215,8 +219,9 @@ def series(s, start, sign, wall_bounces, n=120):
 
 @pytest.mark.slow
 def test_cw_and_ccw_are_mirror_images_without_wall_bounces_but_differ_with_them():
-    from bladesonar.io.scene_file import load_scene
     from pathlib import Path
+
+    from bladesonar.io.scene_file import load_scene
 
     s = load_scene(Path(__file__).resolve().parents[1] / "config/scenes/paper-room.yaml")
     S, C = np.array(s.sensor), np.array(s.fan_centre)

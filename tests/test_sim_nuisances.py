@@ -85,7 +85,7 @@ def test_bursts_cover_their_share_of_the_time_at_their_level(scene):
     covered = sum(r["samples"] for r in runs) / meta["capture_samples"]
     assert abs(covered - 0.1) < 0.3 * 0.1 / len(runs) + 1e-9 + 0.015
     starts = [r["capture_index"] for r in runs]
-    assert all(b >= a + r["samples"] for a, b, r in zip(starts, starts[1:], runs))
+    assert all(b >= a + r["samples"] for a, b, r in zip(starts, starts[1:], runs, strict=False))
     z = device.burst_samples(sim.bursts, 0, sim.burst_rms, 4, FS)
     assert math.isclose(math.sqrt(np.mean(z * z)), sim.burst_rms, rel_tol=1e-9)
     # 10 dB over the mean power of all echoes in the gate

@@ -16,7 +16,6 @@ from bladesonar.errors import ConfigError
 from bladesonar.io.scene_file import load_scene
 from bladesonar.sim import Scene
 from bladesonar.sim.render import Simulator, echo_response, simulate
-
 from test_waveform import band_limited_peak
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -190,7 +189,7 @@ def test_echo_response_puts_each_path_at_its_range(room):
     h = echo_response(room, CFG, a, PRI)
     assert h[0] == pytest.approx(room.coupling_gain)
     p = geometry.paths(room, a)
-    for L, g, k in zip(p.length_m, p.gain, p.kind):
+    for L, k in zip(p.length_m, p.kind, strict=True):
         if k == "wall":   # separated static echoes: the peak sits at 2 d / c * fs
             d = L / 343.0 * 44100
             lo = int(d) - 20

@@ -4,6 +4,7 @@ zero, the grammar's round trip and errors, and a rendered recording's truth."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from pathlib import Path
 
@@ -43,7 +44,7 @@ def quad_turns(s: Schedule, t: float) -> float:
     """Numerical integral of rate_at from 0 to t, split at every knot (smooth in between)."""
     knots = [0.0] + [p.start_s for p in s.pieces if 0 < p.start_s < t] + [t]
     return sum(integrate.quad(lambda x: rate(s, x), a, b, epsabs=1e-13, epsrel=1e-13,
-                              limit=500)[0] for a, b in zip(knots[:-1], knots[1:]))
+                              limit=500)[0] for a, b in itertools.pairwise(knots))
 
 
 @pytest.mark.parametrize("name", sorted(SCHEDULES))
@@ -53,7 +54,7 @@ def test_turns_are_the_integral_of_the_rate(name):
     ts = np.concatenate([np.linspace(0.0, end, 23), [p.start_s for p in s.pieces]])
     got = s.turns_at(ts)
     assert got.dtype == np.float64
-    for t, g in zip(ts, got):
+    for t, g in zip(ts, got, strict=True):
         assert g == pytest.approx(quad_turns(s, float(t)), abs=1e-10)
     assert np.allclose(s.angle_at(ts, 0.3), 0.3 + 2 * math.pi * got, rtol=0, atol=1e-12)
 

@@ -42,7 +42,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -521,8 +521,8 @@ def aggregate_transitions(records: list[dict[str, Any]]) -> list[dict[str, Any]]
         g = groups[key]
         audio = sum(r["audio_s"] for r in g)
         for kind in TRANSITION_KINDS:
-            rows.append(dict(zip(("scene", "blades", "ratio", "snr_db"), key), kind=kind,
-                             **_transition_row(g, kind, audio)))
+            named = dict(zip(("scene", "blades", "ratio", "snr_db"), key, strict=True))
+            rows.append(dict(named, kind=kind, **_transition_row(g, kind, audio)))
     return rows
 
 

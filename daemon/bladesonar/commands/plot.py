@@ -303,8 +303,8 @@ def _track(args):
 
 def _sim(args):
     from .. import imaging
-    from ..plots import sim
     from ..io.scene_file import load_scene
+    from ..plots import sim
 
     cfg = _cfg(args)
     scene = load_scene(args.scene).with_config(cfg)

@@ -50,10 +50,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import config
     from ..analysis import build_reference
+    from ..errors import InputError
     from ..io.reference import save_reference
     from ..io.wav import read_wav
-
-    from ..errors import InputError
 
     cfg = config.load(args.config)
     if args.live:

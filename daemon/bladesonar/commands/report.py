@@ -122,12 +122,20 @@ def run(args: argparse.Namespace) -> int:
 
     from .. import config
     from ..errors import ConfigError
-    from ..progress import Progress
-    from ..runtime_report import (TRANSITION_TARGETS_S, aggregate, aggregate_reversals,
-                                  aggregate_transitions, default_grid, envelope, jobs,
-                                  limit_notes, refusal_notes)
-    from ..report_text import markdown
     from ..io.scene_file import load_scene
+    from ..progress import Progress
+    from ..report_text import markdown
+    from ..runtime_report import (
+        TRANSITION_TARGETS_S,
+        aggregate,
+        aggregate_reversals,
+        aggregate_transitions,
+        default_grid,
+        envelope,
+        jobs,
+        limit_notes,
+        refusal_notes,
+    )
 
     if args.jobs < 1:
         raise ConfigError("--jobs", args.jobs, "must be at least 1")

@@ -56,8 +56,8 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from .. import config
-    from ..loopback import CAP_PCM, PLAY_PCM, Room, write_alsa_config
     from ..io.scene_file import load_scene
+    from ..loopback import CAP_PCM, PLAY_PCM, Room, write_alsa_config
 
     cfg = config.load(args.config)
     scene = load_scene(args.scene or cfg.path(cfg.sim.scene))

@@ -145,15 +145,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     import json
-    import logging
     from pathlib import Path
 
     from .. import config
     from ..errors import ConfigError
+    from ..io.scene_file import load_scene
     from ..io.truth import TruthWriter, truth_path
     from ..io.wav import WavWriter
     from ..progress import Progress
-    from ..io.scene_file import load_scene
     from ..sim.render import Simulator
     from ..sim.schedule import Schedule
 

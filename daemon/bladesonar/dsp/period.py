@@ -213,7 +213,7 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
         hs = np.arange(1, 17)
         centre = np.rint(_fold(hs * r) / dnu).astype(int)
         got: set[int] = set()
-        for h, b in zip(hs, centre):
+        for h, b in zip(hs, centre, strict=True):
             w = pad // 2 + int(h) // 2
             lo, hi = max(b - w, 0), min(b + w + 1, len(nu))
             i = lo + int(np.argmax(excess[lo:hi]))

@@ -128,7 +128,7 @@ def _crossing_offset(template: np.ndarray, seg: np.ndarray, level: float) -> flo
         return None
     k = np.searchsorted(js, jt)
     shifts = []
-    for m, kk in zip(range(len(jt)), k):
+    for m, kk in enumerate(k):
         for q in (kk - 1, kk):
             if 0 <= q < len(js) and abs(int(js[q]) - int(jt[m])) <= 1 and \
                     np.sign(template[jt[m]]) == np.sign(seg[js[q]]):
@@ -196,12 +196,12 @@ class AlignedPulses:
         return len(self.index)
 
     @staticmethod
-    def empty(length: int) -> "AlignedPulses":
+    def empty(length: int) -> AlignedPulses:
         return AlignedPulses(np.zeros((0, length)), np.zeros(0), np.zeros(0, np.int64),
                              np.zeros(0, np.int8))
 
     @staticmethod
-    def concat(parts: list["AlignedPulses"], length: int) -> "AlignedPulses":
+    def concat(parts: list[AlignedPulses], length: int) -> AlignedPulses:
         parts = [p for p in parts if len(p)]
         if not parts:
             return AlignedPulses.empty(length)

@@ -13,8 +13,9 @@ import reprlib
 import stat
 import tempfile
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import BinaryIO, Callable, Iterator
+from typing import BinaryIO
 
 #: Longest repr of a user value inside an error message, characters.
 MAX_REPR = 80

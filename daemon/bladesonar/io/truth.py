@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 
 def truth_path(wav_path: str | Path) -> Path:
@@ -73,7 +74,7 @@ class TruthWriter:
     def pulses_written(self) -> int:
         return self._n
 
-    def __enter__(self) -> "TruthWriter":
+    def __enter__(self) -> TruthWriter:
         return self
 
     def __exit__(self, exc_type: object, *exc: object) -> None:

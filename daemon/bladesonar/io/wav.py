@@ -18,10 +18,11 @@ import logging
 import os
 import stat
 import struct
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO, Iterator
+from typing import BinaryIO
 
 import numpy as np
 
@@ -208,7 +209,7 @@ class WavReader:
     def close(self) -> None:
         self._f.close()
 
-    def __enter__(self) -> "WavReader":
+    def __enter__(self) -> WavReader:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -312,7 +313,7 @@ class WavWriter:
         """Drop the temporary file; ``path`` is left as it was."""
         self._out.abort()
 
-    def __enter__(self) -> "WavWriter":
+    def __enter__(self) -> WavWriter:
         return self
 
     def __exit__(self, exc_type: object, *exc: object) -> None:

@@ -26,9 +26,10 @@ import select
 import stat
 import termios
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, Callable
+from typing import IO, Any
 
 import numpy as np
 from scipy.signal import fftconvolve
@@ -171,7 +172,7 @@ class Room:
                 os.close(fd)
                 setattr(self, name, None)
 
-    def __enter__(self) -> "Room":
+    def __enter__(self) -> Room:
         self.open()
         return self
 

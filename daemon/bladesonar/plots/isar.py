@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import pyplot, save
 from ..imaging import IsarImage
+from . import pyplot, save
 
 
 def draw(img: IsarImage, out: str | Path, *, title: str = "", floor_db: float = -20.0,

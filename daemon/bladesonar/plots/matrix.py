@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import FIGSIZE, pyplot, save
 from ..imaging import Stripes
+from . import FIGSIZE, pyplot, save
 
 
 def draw(d: np.ndarray, prf: float, out: str | Path, *, stripes: Stripes | None = None,

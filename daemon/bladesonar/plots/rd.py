@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import FIGSIZE, pyplot, save
 from ..imaging import RANGE_LABEL, RDMap
+from . import FIGSIZE, pyplot, save
 
 
 def draw(m: RDMap, out: str | Path, *, title: str = "", floor_db: float | None = None,

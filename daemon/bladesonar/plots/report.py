@@ -43,7 +43,7 @@ def error_vs_time(rows: list[dict[str, Any]], out: str | Path, *, title: str = "
         e = [(r["window_s"], 100 * r["rate_err_median"], 100 * r["rate_err_p95"]) for r in g
              if r["rate_err_median"] is not None]
         if e:
-            x, m, p = map(np.array, zip(*e))
+            x, m, p = map(np.array, zip(*e, strict=True))
             a2.plot(x, m, "o-", color=col, ms=3, lw=1.2, label=f"{s:g} dB")
             a2.plot(x, p, "--", color=col, lw=0.8)
     a1.axhline(99, color="0.5", lw=0.7, ls="--")

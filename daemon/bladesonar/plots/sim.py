@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import FIGSIZE, pyplot, save
 from ..imaging import RANGE_LABEL, PathSeries
+from . import FIGSIZE, pyplot, save
 
 
 def draw(ccw: PathSeries, cw: PathSeries, out: str | Path, *, title: str = "",

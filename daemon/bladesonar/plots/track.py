@@ -3,13 +3,13 @@ decision, and reversals (decided, and true when a truth file is given)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
-from . import pyplot, save
 from ..imaging import TrackSeries
+from . import pyplot, save
 
 COLOURS = {"same": "#2ca02c", "reversed": "#d62728", "stopped": "#7f7f7f",
            "unknown": "#ffffff"}
@@ -23,7 +23,7 @@ def _spans(t: np.ndarray, labels: np.ndarray):
     starts = np.concatenate([[0], edges])
     ends = np.concatenate([edges, [len(t)]])
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    for a, b in zip(starts, ends):
+    for a, b in zip(starts, ends, strict=True):
         yield t[a], t[b - 1] + dt, labels[a]
 
 

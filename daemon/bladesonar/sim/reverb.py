@@ -12,9 +12,10 @@ reflections), starting after the first-order echoes. Two parts:
   blade phase (three harmonics of it), so the late echoes of the fan move with the fan.
 
 Rendering: the tail's waveforms are band-limited (same kernel and pulse shape as the
-paths) and precomputed (lazily, float32) at 32 fractional start positions; a pulse's tail is the one at its
-edge's fraction (error under 1/64 sample: clock drift moves a static tail as little as it
-moves a static path). A pulse k adds ``static + sum_h cos(2 pi h phi_k) A_h + sin(...) B_h``.
+paths) and precomputed (lazily, float32) at 32 fractional start positions; a pulse's tail
+is the one at its edge's fraction (error under 1/64 sample: clock drift moves a static tail
+as little as it moves a static path). A pulse k adds
+``static + sum_h cos(2 pi h phi_k) A_h + sin(...) B_h``.
 """
 
 from __future__ import annotations
@@ -101,7 +102,7 @@ class Tail:
         """Add the tails of pulses with coupling edges ``edges`` (capture samples) and blade
         phases ``phases`` into ``out`` (capture samples [n0, n0 + len(out)))."""
         n = len(out)
-        for e, ph in zip(edges, phases):
+        for e, ph in zip(edges, phases, strict=True):
             pos = float(e) + self.start - waveform.HALF_TAPS
             base = math.floor(pos)
             fb = int(round((pos - base) * FRACTIONS))

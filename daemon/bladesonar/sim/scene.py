@@ -19,8 +19,9 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -70,7 +71,7 @@ class Scene:
     """Optional rotation schedule DIR:RATE_HZ:SECONDS,... stated by the scene file."""
     name: str = "scene"
     source: str | None = None
-    nuisances: "_nuisances.Nuisances | None" = None
+    nuisances: _nuisances.Nuisances | None = None
     """What a real device and room add (sim/nuisances.py), stated by the scene file."""
 
     # ------------------------------------------------------------------ derived arrays
@@ -102,7 +103,7 @@ class Scene:
     def sensor_fan_distance_m(self) -> float:
         return math.dist(self.sensor, self.fan_centre)
 
-    def with_config(self, cfg) -> "Scene":
+    def with_config(self, cfg) -> Scene:
         """The scene with its blade count settled against ``cfg.scene.blades``."""
         k = cfg.scene.blades
         if self.blades is None:
@@ -129,7 +130,7 @@ class Scene:
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_mapping(cls, data: Any, *, source: str | None = None,
-                     lines: Mapping[str, int] | None = None) -> "Scene":
+                     lines: Mapping[str, int] | None = None) -> Scene:
         """Validate a parsed scene document (see config/scenes/paper-room.yaml)."""
         lines = lines or {}
 
@@ -141,7 +142,7 @@ class Scene:
         _check_keys(data, "", fail)
         for req in ("room", "sensor", "fan"):
             if req not in data:
-                fail(req, None, f"is required (a scene needs room, sensor and fan; see "
+                fail(req, None, "is required (a scene needs room, sensor and fan; see "
                      "config/scenes/paper-room.yaml)")
         room, fan = data["room"], data["fan"]
         if not isinstance(room, Mapping):
@@ -260,7 +261,7 @@ def _inside(p: np.ndarray, V: np.ndarray) -> bool:
     """Even-odd ray casting."""
     x, y = p
     inside = False
-    for (x1, y1), (x2, y2) in zip(V, np.roll(V, -1, axis=0)):
+    for (x1, y1), (x2, y2) in zip(V, np.roll(V, -1, axis=0), strict=True):
         if (y1 > y) != (y2 > y):
             xc = x1 + (y - y1) * (x2 - x1) / (y2 - y1)
             if xc > x:

@@ -27,9 +27,10 @@ are exact at every pulse time.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -96,7 +97,7 @@ class Schedule:
     wobble: Wobble | None = None
 
     @classmethod
-    def constant(cls, rate_hz: float, direction: str = "ccw") -> "Schedule":
+    def constant(cls, rate_hz: float, direction: str = "ccw") -> Schedule:
         """One segment forever; ``rate_hz`` 0 means stopped."""
         return parse([(direction if rate_hz else "stop", rate_hz, 1.0)], key="--rate")
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..sim.geometry import MIN_LEG_M
 from .nuisances import Nuisances
 from .scene import Scene, _inside
-from ..sim.geometry import MIN_LEG_M
 
 
 def walker_line_y(nz: Nuisances, scene: Scene) -> float:
