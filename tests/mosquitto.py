@@ -200,7 +200,8 @@ class Subscriber:
             self.client.username_pw_set(username, password)
         if ca_certs is not None:
             self.client.tls_set(ca_certs=ca_certs)
-        self.client.reconnect_delay_set(0.05, 0.2)
+        # paho's annotation says int, its code takes any number of seconds
+        self.client.reconnect_delay_set(0.05, 0.2)  # type: ignore[arg-type]
         self.client.on_connect = self._on_connect
         self.client.on_message = self._on_message
         self.client.on_subscribe = lambda *a: self._subscribed.set()

@@ -5,6 +5,7 @@ never a confident wrong answer (issue 12)."""
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 import pytest
@@ -19,14 +20,14 @@ from bladesonar.sim.score import truth_events
 
 pytestmark = pytest.mark.slow   # whole simulated recordings: outside the fast tier
 
-SPEAKER = dict(speaker_highpass_hz=400.0, speaker_resonance_hz=2500.0)
+SPEAKER: dict[str, Any] = dict(speaker_highpass_hz=400.0, speaker_resonance_hz=2500.0)
 #: drop-outs of 3 PRIs and a bit at 1.5 s and 3.5 s: removed from the file, so the pulses
 #: lost cannot be counted (the daemon counts them from the capture position); the track
 #: starts afresh after each and the last window is clear of them
 GAPS = dict(dropouts=[(66150, 3 * 1297 + 500), (154350, 3 * 1297 + 500)])
 #: name: (scene coupling gain, nuisances of the device and room (reference and probe),
 #: of the probe only, probe schedule extras, probe simulate keywords)
-CASES = {
+CASES: dict[str, tuple[float | None, dict[str, Any], dict[str, Any], str, dict[str, Any]]] = {
     "clipped-coupling": (20.0, SPEAKER, {}, "", {}),
     "reverb-0.5s": (None, dict(rt60_s=0.5), {}, "", {}),
     "reverb-0.7s": (None, dict(rt60_s=0.7), {}, "", {}),

@@ -75,6 +75,7 @@ def unit_at_prefix(tmp_path: Path, text: str | None = None) -> Path:
 
 
 def analyze(*args: str) -> subprocess.CompletedProcess:
+    assert SYSTEMD_ANALYZE is not None   # the callers are marked needs_analyze
     return subprocess.run([SYSTEMD_ANALYZE, *args], capture_output=True, text=True,
                           timeout=60)
 
@@ -221,8 +222,8 @@ SYSTEM_PATHS = ["/etc/bladesonar", "/etc/systemd/system/bladesonar.service",
                 "/var/lib/bladesonar", "/opt/bladesonar"]
 
 
-def snapshot(paths: list[str]) -> dict[str, tuple | None]:
-    out = {}
+def snapshot(paths: list[str]) -> dict[str, tuple[int, int, int] | None]:
+    out: dict[str, tuple[int, int, int] | None] = {}
     for p in paths:
         try:
             st = os.stat(p)

@@ -65,7 +65,11 @@ def test_pure_computation_never_imports_an_edge(repo_root):
 def test_no_import_circles(repo_root):
     g = _graph(repo_root)
     # Tarjan's strongly connected components: any with more than one module is a circle
-    index, low, stack, on, comps = {}, {}, [], set(), []
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    comps: list[list[str]] = []
 
     def visit(v):
         index[v] = low[v] = len(index)

@@ -226,5 +226,6 @@ def test_ten_minutes_stream_in_bounded_memory(room):
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
+    assert sim.meta is not None
     assert total == 600 * 44100 and pulses == sim.meta["pulses"]
     assert peak < total * 8 / 20          # whole output as float64 would be 212 MB

@@ -224,8 +224,8 @@ def backproject(pulses: np.ndarray, times_s: np.ndarray, *, delay0: float, fs: f
     Lu = data.shape[1]
     flat = np.concatenate([data, np.zeros((n, 1), dtype=data.dtype)], axis=1).ravel()
     axis = (np.arange(n_pix) + 0.5) / n_pix * 2 * extent_m - extent_m
-    px, py = np.meshgrid(axis, axis)
-    px, py = px.ravel(), py.ravel()
+    grid_x, grid_y = np.meshgrid(axis, axis)
+    px, py = grid_x.ravel(), grid_y.ravel()
     th = start_rad + 2.0 * math.pi * rate_hz * t
     d = np.asarray(sensor, float) - np.asarray(centre, float)
     sx = np.cos(th) * d[0] + np.sin(th) * d[1]
@@ -396,11 +396,14 @@ def stripe_slope(d: np.ndarray, *, pad: int = 4) -> Stripes:
         if _dtft2(z, ci, cj) > 0.25 * top:
             gi, gj = ci, cj
             break
-    res = optimize.minimize(lambda v: -_dtft2(z, v[0], v[1]), np.array([gi, gj]),
+    def minus_power(v: np.ndarray) -> float:
+        return -_dtft2(z, float(v[0]), float(v[1]))
+
+    res = optimize.minimize(minus_power, np.array([gi, gj]),
                             method="Nelder-Mead",
-                            options=dict(xatol=1e-6, fatol=1e-9 * top, maxiter=400,
-                                         initial_simplex=[[gi, gj], [gi + 0.25 / FA, gj],
-                                                          [gi, gj + 0.25 / FB]]))
+                            options={"xatol": 1e-6, "fatol": 1e-9 * top, "maxiter": 400,
+                                     "initial_simplex": [[gi, gj], [gi + 0.25 / FA, gj],
+                                                         [gi, gj + 0.25 / FB]]})
     ri, rj = float(res.x[0]), float(res.x[1])
     # the distance is lowest where the phases agree: where the fundamental's cosine is -1
     ei = np.exp(-2j * np.pi * ri * np.arange(nA))

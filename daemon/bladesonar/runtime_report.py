@@ -551,7 +551,7 @@ def envelope(rows: list[dict[str, Any]], target: float = 0.99) -> dict[str, Any]
     the lowest SNR that reaches it at some window."""
     ws = [r for r in rows if r["family"] == "window_snr"]
     snrs = sorted({r["snr_db"] for r in ws})
-    per_snr = {}
+    per_snr: dict[str, float | None] = {}
     for s in snrs:
         g = sorted((r for r in ws if r["snr_db"] == s), key=lambda r: r["window_s"])
         shortest = None
@@ -563,7 +563,8 @@ def envelope(rows: list[dict[str, Any]], target: float = 0.99) -> dict[str, Any]
     ok = [s for s in snrs if per_snr[str(s)] is not None]
     lowest = min(ok) if ok else None
     return dict(target=target, shortest_window_s_by_snr=per_snr, lowest_snr_db=lowest,
-                shortest_window_s=min((per_snr[str(s)] for s in ok), default=None),
+                shortest_window_s=min((w for w in per_snr.values() if w is not None),
+                                      default=None),
                 shortest_window_at_lowest_snr_s=per_snr[str(lowest)] if ok else None)
 
 

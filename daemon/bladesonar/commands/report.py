@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import Any
 
 EPILOG = """\
 The full sweep (observation window 0.25-30 s, SNR -5..30 dB, rate ratios 0..9, 3-5 blades,
@@ -86,6 +87,11 @@ def _pool(n: int, state: dict):
     return ctx.Pool(n, initializer=_init, initargs=(state,))
 
 
+def _tuples(fam: dict[str, Any]) -> dict[str, Any]:
+    """A sweep file's family with its lists as the tuples :class:`Family` holds."""
+    return {k: (tuple(v) if isinstance(v, list) else v) for k, v in fam.items()}
+
+
 def load_grid(path: str):
     import dataclasses
 
@@ -95,8 +101,7 @@ def load_grid(path: str):
     try:
         with open(path, encoding="utf-8") as f:
             data = json.load(f)
-        fams = tuple(Family(**{k: (tuple(v) if isinstance(v, list) else v)
-                               for k, v in fam.items()}) for fam in data.pop("families"))
+        fams = tuple(Family(**_tuples(fam)) for fam in data.pop("families"))
         return dataclasses.replace(Grid(families=fams), **data)
     except (OSError, ValueError, TypeError, KeyError) as exc:
         raise ConfigError("--grid", path, f"is not a valid sweep file ({exc}); see "

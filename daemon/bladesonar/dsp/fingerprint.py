@@ -77,7 +77,8 @@ def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str =
         c = np.cumsum(np.pad(env, ((0, 0), (smooth // 2 + 1, smooth - smooth // 2 - 1)),
                              mode="edge"), axis=1)
         env = (c[:, smooth:] - c[:, :-smooth]) / smooth
-    return env - env.mean(axis=1, keepdims=True)
+    centred: np.ndarray = env - env.mean(axis=1, keepdims=True)
+    return centred
 
 
 def fold_phases(k: np.ndarray, cycles_per_pulse: float, k0: float = 0.0) -> np.ndarray:
@@ -211,7 +212,8 @@ def table_lookup(table: np.ndarray, phases: np.ndarray) -> np.ndarray:
     pos = np.mod(np.asarray(phases, dtype=np.float64), 1.0) * bins
     b0 = np.floor(pos).astype(np.int64) % bins
     w = (pos - np.floor(pos))[:, None]
-    return (1.0 - w) * table[b0] + w * table[(b0 + 1) % bins]
+    rows: np.ndarray = (1.0 - w) * table[b0] + w * table[(b0 + 1) % bins]
+    return rows
 
 
 def explained_fraction(features: np.ndarray, table: np.ndarray, phases: np.ndarray) -> float:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 
@@ -57,12 +58,20 @@ class Gate:
                               self.fs)
 
 
+@overload
+def range_to_delay(range_m: float, c: float, fs: float) -> float: ...
+@overload
+def range_to_delay(range_m: np.ndarray, c: float, fs: float) -> np.ndarray: ...
 def range_to_delay(range_m: float | np.ndarray, c: float, fs: float) -> float | np.ndarray:
     """Two-way delay in samples of a one-way range: ``2 r / c * fs``."""
     return 2.0 * np.asarray(range_m, dtype=np.float64) / c * fs if isinstance(
         range_m, np.ndarray) else 2.0 * float(range_m) / c * fs
 
 
+@overload
+def delay_to_range(delay: float, c: float, fs: float) -> float: ...
+@overload
+def delay_to_range(delay: np.ndarray, c: float, fs: float) -> np.ndarray: ...
 def delay_to_range(delay: float | np.ndarray, c: float, fs: float) -> float | np.ndarray:
     """One-way range in metres of a delay in samples: ``c * delay / fs / 2``."""
     return c * np.asarray(delay, dtype=np.float64) / fs / 2.0 if isinstance(

@@ -102,7 +102,8 @@ def principal_series(y: np.ndarray, d: int = 16) -> np.ndarray:
     """
     u, s, _ = np.linalg.svd(y, full_matrices=False)
     d = int(min(d, len(s)))
-    return u[:, :d] * s[:d]
+    coords: np.ndarray = u[:, :d] * s[:d]
+    return coords
 
 
 def harmonic_power(z: np.ndarray, k: np.ndarray, rates: np.ndarray,

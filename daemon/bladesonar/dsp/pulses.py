@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -190,7 +191,8 @@ class AlignedPulses:
     @property
     def valid(self) -> np.ndarray:
         """Boolean mask of usable pulses, shape (n,)."""
-        return self.status == OK
+        mask: np.ndarray = self.status == OK
+        return mask
 
     def __len__(self) -> int:
         return len(self.index)
@@ -451,6 +453,7 @@ class PulseAligner:
         half = self.pri // 2
         while True:
             pred = self._next
+            assert pred is not None   # set by _acquire, only ever advanced since
             if self._pending is None:
                 # the first pulse: its edge was measured during acquisition
                 self._pending = _Edge(pred, OK, self._count)
@@ -595,7 +598,7 @@ def count_dropped(status: np.ndarray, *, ended: bool = False) -> int:
     return int(np.count_nonzero((s != OK) & (s != WARMUP) & (s != BURST)))
 
 
-def align(x: np.ndarray, pri: int, gate: Gate, **kwargs) -> AlignedPulses:
+def align(x: np.ndarray, pri: int, gate: Gate, **kwargs: Any) -> AlignedPulses:
     """One-shot alignment of a whole recording (same result as feeding it in chunks).
 
     Parameters

@@ -39,12 +39,15 @@ def envelope(x: np.ndarray, smooth: int = 9) -> np.ndarray:
     env = np.abs(sp_fft.ifft(full)[:n])
     if smooth > 1:
         env = np.convolve(env, np.ones(smooth) / smooth, mode="same")
-    return env - env.mean()
+    centred: np.ndarray = env - env.mean()
+    return centred
 
 
 def _read(y: np.ndarray, pos: np.ndarray) -> np.ndarray:
     """``y`` read at fractional indices ``pos`` (linear; 0 outside)."""
-    return np.interp(pos, np.arange(len(y), dtype=np.float64), y, left=0.0, right=0.0)
+    read: np.ndarray = np.interp(pos, np.arange(len(y), dtype=np.float64), y, left=0.0,
+                                 right=0.0)
+    return read
 
 
 def estimate_scale(ref_mean: np.ndarray, now_mean: np.ndarray, start: int

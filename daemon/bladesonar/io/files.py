@@ -15,7 +15,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import BinaryIO
+from typing import IO, Any
 
 #: Longest repr of a user value inside an error message, characters.
 MAX_REPR = 80
@@ -41,7 +41,7 @@ def short_repr(value: object, limit: int = MAX_REPR) -> str:
     return s if len(s) <= limit else s[:limit - 3] + "..."
 
 
-def one_line(text: str, limit: int = 120) -> str:
+def one_line(text: object, limit: int = 120) -> str:
     """``text`` on one line, cut to ``limit`` characters (a library's message in ours)."""
     s = " ".join(str(text).split())
     return s if len(s) <= limit else s[:limit - 3] + "..."
@@ -107,7 +107,7 @@ def temp_prefix(path: Path) -> str:
 
 
 @contextlib.contextmanager
-def atomic_writer(path: str | Path) -> Iterator[BinaryIO]:
+def atomic_writer(path: str | Path) -> Iterator[IO[bytes]]:
     """A binary file that appears at ``path`` only when the block ends without error
     (:class:`AtomicFile` in one block): on any error (a full disk, a signal) the
     temporary file is removed and ``path`` is left as it was."""
@@ -132,7 +132,7 @@ class AtomicFile:
         self.folder = self.path.parent if str(self.path.parent) else Path(".")
         fd, self._tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp",
                                          dir=self.folder)
-        self.file = os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"}))
+        self.file: IO[Any] = os.fdopen(fd, mode, encoding=None if "b" in mode else "utf-8")
         self.done = False
 
     def commit(self, last: Callable[[], object] | None = None) -> None:
@@ -172,7 +172,7 @@ def remove_stale_temps(path: str | Path, older_than_s: float = 0.0) -> list[Path
     exact pattern, owned by nobody else's write (older than ``older_than_s``), go."""
     p = Path(path)
     folder = p.parent if str(p.parent) else Path(".")
-    removed = []
+    removed: list[Path] = []
     now = time.time()
     try:
         names = os.listdir(folder)

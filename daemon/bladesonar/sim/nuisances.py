@@ -110,7 +110,7 @@ def parse(data: Any, *, key: str = "nuisances", source: str | None = None,
     if not isinstance(data, Mapping):
         raise ConfigError(key, data, "must be a mapping of nuisance settings, e.g. "
                           "{rt60_s: 0.5, agc_db: 3}", source=source, line=lines.get(key))
-    out = dict((base or Nuisances()).describe())
+    out: dict[str, Any] = dict((base or Nuisances()).describe())   # bits is an int
     for k, v in data.items():
         name = f"{key}.{k}"
         if k not in KEYS:

@@ -247,7 +247,9 @@ class Simulator:
         return L / self.c * self.fs + 1.0
 
     def _resolve_dropouts(self, n_out: int) -> list[Dropout]:
-        spec, L = self._dropout_spec, self.dropout_samples
+        # a caller's value, checked here: a count or (output_index, samples) pairs
+        spec: Any = self._dropout_spec
+        L = self.dropout_samples
         if isinstance(spec, (int, np.integer)) and not isinstance(spec, bool):
             n = int(spec)
             if n < 0:
@@ -306,12 +308,14 @@ class Simulator:
         self.n_pulses = max(0, int(math.ceil(last - 1e-12)))
         while self.n_pulses > 0 and self._edge(self.n_pulses - 1) >= self.n_capture:
             self.n_pulses -= 1
-        self.sigma, p_fan, ref = 0.0, None, None
+        self.sigma = 0.0
+        p_fan: float | None = None
+        ref: str | None = None
         self._p_echo = 0.0
         if self.snr_db is not None or self.nz.burst_fraction:
             p_fan, ref = self._reference_power()
-        if self.snr_db is not None:
-            self.sigma = math.sqrt(p_fan / 10 ** (self.snr_db / 10))
+            if self.snr_db is not None:
+                self.sigma = math.sqrt(p_fan / 10 ** (self.snr_db / 10))
         self.bursts = _device.place_bursts(self.nz, self.seed, self.n_capture, self.fs)
         self.burst_rms = math.sqrt(self._p_echo * 10 ** (self.nz.burst_db / 10))
         g0, g1, gm = gate_samples(self.cfg)
@@ -386,7 +390,9 @@ class Simulator:
             d, g, v = self._block(b)
             lo = max(k0 - b * _PULSE_BLOCK, 0)
             hi = min(k1 - b * _PULSE_BLOCK, _PULSE_BLOCK)
-            ds.append(d[lo:hi]), gs.append(g[lo:hi]), vs.append(v[lo:hi])
+            ds.append(d[lo:hi])
+            gs.append(g[lo:hi])
+            vs.append(v[lo:hi])
         return np.concatenate(ds), np.concatenate(gs), np.concatenate(vs)
 
     # ------------------------------------------------------------------ SNR reference

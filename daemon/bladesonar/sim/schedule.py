@@ -298,6 +298,9 @@ def _segment(item: Any, key: str, source: str | None) -> Segment:
     fix = ("write DIR:RATE_HZ:SECONDS[~RAMP_S] with DIR cw, ccw or stop, e.g. cw:0.4:5, "
            "stop:0:2 or cw:0.4:20~8 (ramp over the first 8 s)")
     ramp: Any = 0.0
+    d: Any   # direction, rate and seconds as written: checked below
+    r: Any
+    s: Any
     if isinstance(item, str):
         main, sep, ramp_txt = item.partition("~")
         if sep:
