@@ -180,81 +180,158 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
     if n < 16:
         raise EstimationError(f"only {n} pulses: the blade period cannot be estimated; "
                               "record a longer reference")
-    nu, s = doppler_spectrum(y, pad)
-    dc = nu < 2.0 / n                        # zero doppler and its window mainlobe
-    floor = float(np.median(s[~dc])) + 1e-300
-    excess = np.where(dc, 0.0, np.maximum(s - floor, 0.0))
-    i_max = int(np.argmax(np.where(dc, 0.0, s)))
-    line_snr = float(s[i_max] / floor)
-    if line_snr < line_snr_min:
+    lines = DopplerLines.of(y, pad)
+    if lines.line_snr < line_snr_min:
         raise EstimationError(
-            f"no doppler line above the noise (strongest is {line_snr:.1f}x the floor, need "
-            f"{line_snr_min:g}x): the target seems stationary. Record the reference while "
-            "the fan turns")
-    # strongest local maxima
-    peaks = np.nonzero((s[1:-1] > s[:-2]) & (s[1:-1] >= s[2:]) & ~dc[1:-1])[0] + 1
-    peaks = peaks[np.argsort(s[peaks])[::-1][:3]]
-    peaks = peaks[s[peaks] >= 0.25 * s[i_max]]
-    r_lo = max(min_periods / n, 1.0 / n)
-    cands = set()
-    for p in peaks:
-        for m in range(1, max_harmonic + 1):
-            for nn in range(0, m + 1):
-                for sign in (1.0, -1.0):
-                    r = (nn + sign * nu[p]) / m
-                    if r_lo * 0.5 <= r < 0.5:
-                        cands.add(round(r, 12))
-    cands = np.array(sorted(cands))
-    total = float(excess.sum()) + 1e-300
-    dnu = nu[1] - nu[0]
+            f"no doppler line above the noise (strongest is {lines.line_snr:.1f}x the floor, "
+            f"need {line_snr_min:g}x): the target seems stationary. Record the reference "
+            "while the fan turns")
+    candidates = lines.candidate_rates(max(min_periods / n, 1.0 / n), max_harmonic)
+    rows = np.any(y != 0.0, axis=1)
+    folds = PhaseFolds(principal_series(y[rows]), np.asarray(k)[rows],
+                       span=float(np.max(k) - np.min(k) + 1))
+    r0 = _fundamental(candidates, lines, folds, explain_tol, max_harmonic)
+    span = float(k.max() - k.min() + 1)
+    _refuse_unusable(r0, span, max_cycles_per_pulse, min_periods)
+    use = lines.harmonics_with_energy(r0)
+    r = _refine(folds.z, folds.k, r0, np.array(use, dtype=np.float64), span)
+    return PeriodEstimate(cycles_per_pulse=r, coarse=r0, line_snr=lines.line_snr,
+                          explained=float(lines.explained(r0)), harmonics=tuple(use),
+                          periods=r * span)
 
-    def explained(r: float) -> float:
+
+@dataclass(frozen=True)
+class DopplerLines:
+    """The range-summed doppler spectrum of a record (:func:`doppler_spectrum`), its noise
+    floor and the line energy above it: where the candidate rates come from and how much
+    of the lines each explains."""
+
+    nu: np.ndarray
+    """Frequency of each bin, cycles per pulse, 0 .. 1/2."""
+    power: np.ndarray
+    """Power summed over samples, per bin."""
+    pad: int
+    """Zero-padding factor (padded bins per FFT bin)."""
+    dc: np.ndarray
+    """Bins of zero doppler and its window mainlobe."""
+    floor: float
+    """Median power outside zero doppler (the noise floor)."""
+    excess: np.ndarray
+    """Power above the floor, 0 at zero doppler."""
+    line_energy: float
+    """All the excess (the denominator of :meth:`explained`)."""
+    strongest: int
+    """Bin of the strongest line."""
+
+    @classmethod
+    def of(cls, y: np.ndarray, pad: int) -> DopplerLines:
+        n = y.shape[0]
+        nu, s = doppler_spectrum(y, pad)
+        dc = nu < 2.0 / n
+        floor = float(np.median(s[~dc])) + 1e-300
+        excess = np.where(dc, 0.0, np.maximum(s - floor, 0.0))
+        return cls(nu=nu, power=s, pad=pad, dc=dc, floor=floor, excess=excess,
+                   line_energy=float(excess.sum()) + 1e-300,
+                   strongest=int(np.argmax(np.where(dc, 0.0, s))))
+
+    @property
+    def line_snr(self) -> float:
+        """Strongest line over the noise floor (power ratio)."""
+        return float(self.power[self.strongest] / self.floor)
+
+    @property
+    def bin_width(self) -> float:
+        """Cycles per pulse between padded bins."""
+        return float(self.nu[1] - self.nu[0])
+
+    def peaks(self) -> np.ndarray:
+        """The strongest local maxima (at most 3, each at least 1/4 of the strongest)."""
+        s = self.power
+        peaks = np.nonzero((s[1:-1] > s[:-2]) & (s[1:-1] >= s[2:]) & ~self.dc[1:-1])[0] + 1
+        peaks = peaks[np.argsort(s[peaks])[::-1][:3]]
+        strong: np.ndarray = peaks[s[peaks] >= 0.25 * s[self.strongest]]
+        return strong
+
+    def candidate_rates(self, r_lo: float, max_harmonic: int) -> np.ndarray:
+        """Every rate ``(n +- nu) / m`` in [r_lo/2, 1/2) of which a peak ``nu`` may be
+        harmonic m aliased by n PRFs, sorted."""
+        cands: set[float] = set()
+        for p in self.peaks():
+            for m in range(1, max_harmonic + 1):
+                for nn in range(0, m + 1):
+                    for sign in (1.0, -1.0):
+                        r = (nn + sign * self.nu[p]) / m
+                        if r_lo * 0.5 <= r < 0.5:
+                            cands.add(round(r, 12))
+        return np.array(sorted(cands))
+
+    def explained(self, r: float) -> float:
+        """Fraction of the line energy on the first 16 harmonics of ``r``."""
         # the line of harmonic h sits within +-h/2 padded bins of h*r (r is known to about
         # half a padded bin) plus its own mainlobe; take the strongest bin of each
+        pad, excess, n_bins = self.pad, self.excess, len(self.nu)
         hs = np.arange(1, 17)
-        centre = np.rint(_fold(hs * r) / dnu).astype(int)
+        centre = np.rint(_fold(hs * r) / self.bin_width).astype(int)
         got: set[int] = set()
         for h, b in zip(hs, centre, strict=True):
             w = pad // 2 + int(h) // 2
-            lo, hi = max(b - w, 0), min(b + w + 1, len(nu))
+            lo, hi = max(b - w, 0), min(b + w + 1, n_bins)
             i = lo + int(np.argmax(excess[lo:hi]))
-            got.update(range(max(i - pad // 2, 0), min(i + pad // 2 + 1, len(nu))))
-        return float(excess[list(got)].sum()) / total
+            got.update(range(max(i - pad // 2, 0), min(i + pad // 2 + 1, n_bins)))
+        return float(excess[list(got)].sum()) / self.line_energy
 
-    rows = np.any(y != 0.0, axis=1)
-    z = principal_series(y[rows])
-    kr = np.asarray(k)[rows]
-    zf = z
+    def harmonics_with_energy(self, r: float) -> list[int]:
+        """Harmonics of ``r`` (up to 16) whose line stands 4x over the floor; [1] if
+        none: the ones the coherent refinement uses."""
+        use = []
+        for h in range(1, 17):
+            b = round(float(_fold(h * r)) / self.bin_width)
+            lo, hi = max(b - self.pad // 2, 0), min(b + self.pad // 2 + 1, len(self.power))
+            if float(self.power[lo:hi].max()) > 4.0 * self.floor:
+                use.append(h)
+        return use or [1]
 
-    total_var = float((zf * zf).sum()) + 1e-300
-    span = float(np.max(k) - np.min(k) + 1)
 
-    def fold(r: float, bins: int) -> tuple[np.ndarray, np.ndarray, float]:
+class PhaseFolds:
+    """A record folded at trial rates: the principal series ``z`` at pulse numbers ``k``
+    sorted into phase bins, and the measures that tell the true rate from its harmonics,
+    sub-harmonics and aliases."""
+
+    def __init__(self, z: np.ndarray, k: np.ndarray, span: float) -> None:
+        self.z = z
+        self.k = k
+        self.span = span
+        """Pulses spanned by the record (first to last pulse number)."""
+        self.total_var = float((z * z).sum()) + 1e-300
+
+    def fold(self, r: float, bins: int) -> tuple[np.ndarray, np.ndarray, float]:
         """Bin means (filled bins only, in phase order), all counts, within-bin energy."""
-        b = np.floor(np.mod(kr * r, 1.0) * bins).astype(np.int64) % bins
+        z = self.z
+        b = np.floor(np.mod(self.k * r, 1.0) * bins).astype(np.int64) % bins
         cnt = np.bincount(b, minlength=bins)
-        sums = np.zeros((bins, zf.shape[1]))
-        np.add.at(sums, b, zf)
+        sums = np.zeros((bins, z.shape[1]))
+        np.add.at(sums, b, z)
         full = cnt > 0
         means = np.zeros_like(sums)
         means[full] = sums[full] / cnt[full, None]
-        within = float(((zf - means[b]) ** 2).sum())
+        within = float(((z - means[b]) ** 2).sum())
         return means, cnt, within
 
-    def dispersion(r: float) -> float:
-        # folding dispersion: energy left within the phase bins over the total. A harmonic
-        # of the true rate puts different angles into one bin and leaves much more.
-        # (the minimum over a few nearby rates, as a coarse candidate is only known to
-        # about 1/(16 N) and its fold would smear otherwise)
-        offs = np.array([-1.0, -0.5, 0.0, 0.5, 1.0]) / (16.0 * span)
-        return min(fold(r + o, 32)[2] for o in offs) / total_var
+    def dispersion(self, r: float) -> float:
+        """Folding dispersion: energy left within the phase bins over the total. A
+        harmonic of the true rate puts different angles into one bin and leaves much
+        more."""
+        # the minimum over a few nearby rates, as a coarse candidate is only known to
+        # about 1/(16 N) and its fold would smear otherwise
+        offs = np.array([-1.0, -0.5, 0.0, 0.5, 1.0]) / (16.0 * self.span)
+        return min(self.fold(r + o, 32)[2] for o in offs) / self.total_var
 
-    def roughness(r: float, bins: int = 64) -> float:
-        # neighbouring bins compared, relative to the spread of the bins (1 for a random
-        # order). The echo pattern is a continuous function of the angle, so only the true
-        # rate makes neighbours alike; an exactly periodic record (r = j/P, every j alike
-        # in the spectrum and in dispersion) is ordered right only by its true j.
-        means, cnt, _ = fold(r, bins)
+    def roughness(self, r: float, bins: int = 64) -> float:
+        """Neighbouring bins compared, relative to the spread of the bins (1 for a random
+        order). The echo pattern is a continuous function of the angle, so only the true
+        rate makes neighbours alike; an exactly periodic record (r = j/P, every j alike in
+        the spectrum and in dispersion) is ordered right only by its true j."""
+        means, cnt, _ = self.fold(r, bins)
         t = means[cnt > 0]
         if len(t) < 3:
             return np.inf
@@ -262,10 +339,10 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
         e = float(((t - t.mean(axis=0)) ** 2).sum())
         return d / (2.0 * e) if e > 0 else np.inf
 
-    def repeats_within(r: float, m: int, per: int = 16) -> bool:
-        # is the fold at r made of m copies (r is a sub-harmonic: r/m, or an alias such
-        # as (1 - r)/2)? Compare the table with itself shifted by 1/m period.
-        means, cnt, _ = fold(r, m * per)
+    def repeats_within(self, r: float, m: int, per: int = 16) -> bool:
+        """Is the fold at ``r`` made of ``m`` copies (``r`` is a sub-harmonic: r/m, or an
+        alias such as (1 - r)/2)? The table compared with itself shifted by 1/m period."""
+        means, cnt, _ = self.fold(r, m * per)
         both = (cnt > 0) & (np.roll(cnt, -per) > 0)
         if both.sum() < per:
             return False
@@ -275,21 +352,34 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
         e = float(((t - t.mean(axis=0)) ** 2).sum())
         return e > 0 and d / (2.0 * e) < 0.2
 
-    scores = np.array([explained(r) for r in cands])
+
+def _fundamental(candidates: np.ndarray, lines: DopplerLines, folds: PhaseFolds,
+                 explain_tol: float, max_harmonic: int) -> float:
+    """The candidate that is the blade-pass rate: explains the lines (not a harmonic),
+    folds tightest and smoothest (not a sub-harmonic or an alias), climbed to r*m while
+    the fold at r repeats m times."""
+    scores = np.array([lines.explained(r) for r in candidates])
     best = float(scores.max())
-    ok = np.unique(np.round(cands[scores >= explain_tol * best], 5))
-    disp = np.array([dispersion(r) for r in ok])
+    ok = np.unique(np.round(candidates[scores >= explain_tol * best], 5))
+    disp = np.array([folds.dispersion(r) for r in ok])
     ok = ok[disp <= 1.2 * disp.min() + 0.02]
-    rough = np.array([roughness(r) for r in ok])
+    rough = np.array([folds.roughness(r) for r in ok])
     r0 = float(ok[int(np.argmin(rough))])
     climbed = True
     while climbed:
         climbed = False
         for m in range(2, max_harmonic + 1):
             rm = float(_fold(m * r0))
-            if rm > r0 and repeats_within(r0, m):
+            if rm > r0 and folds.repeats_within(r0, m):
                 r0, climbed = rm, True
                 break
+    return r0
+
+
+def _refuse_unusable(r0: float, span: float, max_cycles_per_pulse: float,
+                     min_periods: float) -> None:
+    """Refuse a rate too near 1/2 cycle per pulse (aliased) or a record holding too few
+    periods of it."""
     if r0 > max_cycles_per_pulse:
         frac = folded_angles(r0, int(span))
         also = (f" Or, if the fan turned slower: {r0:.3f} is {frac} cycle per pulse, and a "
@@ -301,32 +391,26 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
             f"{max_cycles_per_pulse:g}): near 1/2 the rate is aliased and the direction "
             "ambiguous. The fan must turn slower than PRF/(2K), or raise the PRF "
             f"(smaller waveform.pri_samples).{also}")
-    span = float(k.max() - k.min() + 1)
     if r0 * span < min_periods:
         raise EstimationError(
             f"the reference spans {r0 * span:.1f} blade periods but at least {min_periods:g} "
             "are needed (analysis.min_periods); record a longer reference")
-    # harmonics carrying energy, for the coherent refinement
-    use = []
-    for h in range(1, 17):
-        b = int(round(_fold(h * r0) / dnu))
-        lo, hi = max(b - pad // 2, 0), min(b + pad // 2 + 1, len(s))
-        if float(s[lo:hi].max()) > 4.0 * floor:
-            use.append(h)
-    if not use:
-        use = [1]
-    hs = np.array(use, dtype=np.float64)
+
+
+def _refine(z: np.ndarray, k: np.ndarray, r0: float, hs: np.ndarray, span: float) -> float:
+    """The maximum of the coherent harmonic power (:func:`harmonic_power` on harmonics
+    ``hs``) near the coarse rate ``r0``: a grid, two finer grids, then a parabola."""
     # coarse candidates are good to about a padded bin divided by the harmonic number
     width = 1.5 / span
     step = 1.0 / (8.0 * span * hs.max())
     grid = r0 + np.arange(-width, width + step / 2, step)
     grid = grid[grid > 0]
-    j = harmonic_power(z, kr, grid, hs)
+    j = harmonic_power(z, k, grid, hs)
     g = int(np.argmax(j))
     for _ in range(2):
         step /= 8.0
         grid = grid[g] + np.arange(-8, 9) * step
-        j = harmonic_power(z, kr, grid, hs)
+        j = harmonic_power(z, k, grid, hs)
         g = int(np.argmax(j))
     r = float(grid[g])
     if 0 < g < len(grid) - 1:
@@ -334,6 +418,4 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
         den = a - 2 * b + c
         if den < 0:
             r += float(0.5 * (a - c) / den) * step
-    return PeriodEstimate(cycles_per_pulse=r, coarse=r0, line_snr=line_snr,
-                          explained=float(explained(r0)), harmonics=tuple(use),
-                          periods=r * span)
+    return r
