@@ -127,103 +127,188 @@ def path_table(scene: Scene, angles: np.ndarray, *, wall_bounces: bool = True) -
     and walls. Column order: coupling, W walls, K blades, then (if ``wall_bounces``)
     K*W wall_blade and K*W blade_wall (blade-major)."""
     th = np.asarray(angles, dtype=np.float64).reshape(-1)
-    P, K = len(th), scene.K
-    A, B = scene.wall_a, scene.wall_b
+    blades = _BladeLines.at(scene, th)
+    obstacles = _Obstacles.of(scene, blades)
+    P, W, K = len(th), obstacles.walls, scene.K
+    coupling = _Columns(np.zeros((P, 1)), np.full((P, 1), scene.coupling_gain),
+                        np.ones((P, 1), bool), ["coupling"], [-1], [-1])
+    groups = [coupling, _wall_echoes(scene, obstacles, P),
+              _blade_echoes(scene, blades, obstacles)]
+    if wall_bounces:
+        length, gain, ok = _wall_blade_echoes(scene, blades, obstacles)
+        for name in ("wall_blade", "blade_wall"):   # the same route both ways round
+            groups.append(_Columns(length.reshape(P, K * W), gain.reshape(P, K * W),
+                                   ok.reshape(P, K * W), [name] * (K * W),
+                                   list(np.repeat(np.arange(K), W)),
+                                   list(np.tile(np.arange(W), K))))
+    valid = np.concatenate([g.valid for g in groups], axis=1)
+    length = np.where(valid, np.concatenate([g.length for g in groups], axis=1), np.nan)
+    gain = np.where(valid, np.concatenate([g.gain for g in groups], axis=1), 0.0)
+    return PathTable(length, gain, valid, np.array([k for g in groups for k in g.kind]),
+                     np.array([b for g in groups for b in g.blade], dtype=np.int64),
+                     np.array([w for g in groups for w in g.wall], dtype=np.int64))
+
+
+@dataclass(frozen=True)
+class _Columns:
+    """A group of candidate paths: (P, n) lengths, gains and validity at P angles, and
+    each column's kind, blade and wall (-1: none)."""
+
+    length: np.ndarray
+    gain: np.ndarray
+    valid: np.ndarray
+    kind: list[str]
+    blade: list[int]
+    wall: list[int]
+
+
+@dataclass(frozen=True)
+class _BladeLines:
+    """The K blades at P fan angles: unit direction ``u`` (hub to tip), normal ``nu`` and
+    the hub and tip ends ``e0``, ``e1``, each (P, K, 2)."""
+
+    u: np.ndarray
+    nu: np.ndarray
+    e0: np.ndarray
+    e1: np.ndarray
+
+    @classmethod
+    def at(cls, scene: Scene, th: np.ndarray) -> _BladeLines:
+        K = scene.K
+        C = np.asarray(scene.fan_centre, dtype=np.float64)
+        phi = th[:, None] + 2.0 * np.pi * np.arange(K)[None, :] / K
+        u = np.stack([np.cos(phi), np.sin(phi)], axis=-1)
+        nu = np.stack([-u[..., 1], u[..., 0]], axis=-1)
+        return cls(u, nu, C + scene.hub_radius_m * u, C + scene.tip_radius_m * u)
+
+
+@dataclass(frozen=True)
+class _Obstacles:
+    """What can shadow a leg at each of P angles: the W walls then the K blades as
+    segments ``q1`` -> ``q2`` (P, W + K, 2); ``own_wall`` (W, W + K) and ``own_blade``
+    (K, W + K) mark the segment a leg starts or ends on (it does not shadow itself)."""
+
+    q1: np.ndarray
+    q2: np.ndarray
+    own_wall: np.ndarray
+    own_blade: np.ndarray
+
+    @property
+    def walls(self) -> int:
+        return self.own_wall.shape[0]
+
+    @classmethod
+    def of(cls, scene: Scene, blades: _BladeLines) -> _Obstacles:
+        A, B = scene.wall_a, scene.wall_b
+        P, K = blades.u.shape[:2]
+        W = len(A)
+        n_obst = W + K
+        q1 = np.concatenate([np.broadcast_to(A, (P, W, 2)), blades.e0], axis=1)
+        q2 = np.concatenate([np.broadcast_to(B, (P, W, 2)), blades.e1], axis=1)
+        own_wall = np.zeros((W, n_obst), bool)
+        own_wall[np.arange(W), np.arange(W)] = True
+        own_blade = np.zeros((K, n_obst), bool)
+        own_blade[np.arange(K), W + np.arange(K)] = True
+        return cls(q1, q2, own_wall, own_blade)
+
+
+def _sensor_heights(scene: Scene) -> np.ndarray:
+    """The sensor's height above each wall's inner face (W,), m."""
+    return _dot(np.asarray(scene.sensor, dtype=np.float64) - scene.wall_a, scene.wall_normals)
+
+
+def _wall_echoes(scene: Scene, obst: _Obstacles, P: int) -> _Columns:
+    """Sensor -> wall -> sensor: valid where the foot of the perpendicular lies on the wall
+    and neither leg is shadowed; the same at every fan angle but for the blades' shadows."""
+    A, B, nrm = scene.wall_a, scene.wall_b, scene.wall_normals
     W = len(A)
-    nrm = scene.wall_normals
-    rho_w = np.asarray(scene.wall_reflection, dtype=np.float64)
-    rho_b = float(scene.blade_reflectivity)
     S = np.asarray(scene.sensor, dtype=np.float64)
-    C = np.asarray(scene.fan_centre, dtype=np.float64)
-    r0, r1 = scene.hub_radius_m, scene.tip_radius_m
-
-    # blades: unit direction u, normal nu, end points; (P, K, 2)
-    phi = th[:, None] + 2.0 * np.pi * np.arange(K)[None, :] / K
-    u = np.stack([np.cos(phi), np.sin(phi)], axis=-1)
-    nu = np.stack([-u[..., 1], u[..., 0]], axis=-1)
-    e0, e1 = C + r0 * u, C + r1 * u
-
-    # obstacles per angle: walls then blades; (P, n_obst, 2)
-    n_obst = W + K
-    q1 = np.concatenate([np.broadcast_to(A, (P, W, 2)), e0], axis=1)
-    q2 = np.concatenate([np.broadcast_to(B, (P, W, 2)), e1], axis=1)
-    eyeW = np.zeros((W, n_obst), bool)
-    eyeW[np.arange(W), np.arange(W)] = True
-    eyeK = np.zeros((K, n_obst), bool)
-    eyeK[np.arange(K), W + np.arange(K)] = True
-
-    # --- static wall echoes (W,)
+    rho_w = np.asarray(scene.wall_reflection, dtype=np.float64)
     wl = B - A
     wl2 = np.maximum(_dot(wl, wl), 1e-300)
-    delta = _dot(S - A, nrm)  # sensor height above each wall's inner face
+    delta = _sensor_heights(scene)
     foot = S - delta[:, None] * nrm
     s_foot = _dot(foot - A, wl) / wl2
     w_ok = (delta > _EPS) & (s_foot >= 0) & (s_foot <= 1)
     w_ok = w_ok[None, :] & ~_blocked(np.broadcast_to(S, (P, W, 2)),
-                                     np.broadcast_to(foot, (P, W, 2)), q1[:, None],
-                                     q2[:, None], eyeW[None])
+                                     np.broadcast_to(foot, (P, W, 2)), obst.q1[:, None],
+                                     obst.q2[:, None], obst.own_wall[None])
     w_len = np.broadcast_to(2 * delta, (P, W))
     w_gain = rho_w / np.maximum(2 * delta, MIN_LEG_M)
+    return _Columns(w_len, np.broadcast_to(w_gain, (P, W)), w_ok, ["wall"] * W, [-1] * W,
+                    list(range(W)))
 
-    # --- direct blade echoes (P, K)
-    dS = S - C
-    t_s = _dot(dS[None, None, :], u)
-    h_s = _dot(dS[None, None, :], nu)
-    pb = C + t_s[..., None] * u
-    b_ok = (np.abs(h_s) > _EPS) & (t_s >= r0) & (t_s <= r1)
-    b_ok &= ~_blocked(np.broadcast_to(S, pb.shape), pb, q1[:, None], q2[:, None], eyeK[None])
+
+def _blade_offsets(scene: Scene, blades: _BladeLines) -> tuple[np.ndarray, np.ndarray]:
+    """The sensor's position along each blade line from the centre and its height off
+    the line, each (P, K), m."""
+    dS = np.asarray(scene.sensor, dtype=np.float64) - np.asarray(scene.fan_centre,
+                                                                 dtype=np.float64)
+    return _dot(dS[None, None, :], blades.u), _dot(dS[None, None, :], blades.nu)
+
+
+def _blade_echoes(scene: Scene, blades: _BladeLines, obst: _Obstacles) -> _Columns:
+    """Sensor -> blade -> sensor: valid where the foot of the perpendicular lies on the
+    blade and the leg is not shadowed."""
+    K = scene.K
+    S = np.asarray(scene.sensor, dtype=np.float64)
+    C = np.asarray(scene.fan_centre, dtype=np.float64)
+    t_s, h_s = _blade_offsets(scene, blades)
+    pb = C + t_s[..., None] * blades.u
+    b_ok = (np.abs(h_s) > _EPS) & (t_s >= scene.hub_radius_m) & (t_s <= scene.tip_radius_m)
+    b_ok &= ~_blocked(np.broadcast_to(S, pb.shape), pb, obst.q1[:, None], obst.q2[:, None],
+                      obst.own_blade[None])
     b_len = 2 * np.abs(h_s)
-    b_gain = rho_b / np.maximum(np.abs(h_s), MIN_LEG_M) ** 2
+    b_gain = float(scene.blade_reflectivity) / np.maximum(np.abs(h_s), MIN_LEG_M) ** 2
+    return _Columns(b_len, b_gain, b_ok, ["blade"] * K, list(range(K)), [-1] * K)
 
-    lengths = [np.zeros((P, 1)), w_len, b_len]
-    gains = [np.full((P, 1), scene.coupling_gain), np.broadcast_to(w_gain, (P, W)), b_gain]
-    valid = [np.ones((P, 1), bool), w_ok, b_ok]
-    kind = ["coupling"] + ["wall"] * W + ["blade"] * K
-    bl = [-1] * (1 + W) + list(range(K))
-    wa = [-1] + list(range(W)) + [-1] * K
 
-    if wall_bounces:
-        # sensor images in the walls (W, 2); broadcast to (P, K, W, 2)
-        img = S - 2 * delta[:, None] * nrm
-        h_i = _dot(img[None, None] - C, nu[:, :, None, :])            # (P, K, W)
-        hs = h_s[..., None]
-        same = (hs * h_i > 0) & (np.abs(hs) > _EPS) & (np.abs(h_i) > _EPS)
-        s_star = S - 2 * hs[..., None] * nu[:, :, None, :]           # sensor mirrored in blade
-        den = np.where(same, h_i + hs, 1.0)
-        lam = np.where(same, h_i / den, 0.0)
-        pt = img + lam[..., None] * (s_star - img)                   # specular point on blade
-        t_p = _dot(pt - C, u[:, :, None, :])
-        ok = same & (t_p >= r0) & (t_p <= r1) & (delta > _EPS)[None, None, :]
-        # the unfolded leg image -> P must pass through the wall segment
-        hp = _dot(pt - A, nrm)                                        # (P, K, W)
-        ok &= hp > _EPS
-        mu = delta / np.where(ok, delta + hp, 1.0)
-        wp = img + mu[..., None] * (pt - img)                        # point on the wall
-        s_w = _dot(wp - A, wl) / wl2
-        ok &= (s_w >= 0) & (s_w <= 1)
-        # shadowing on the three real legs
-        exW = np.broadcast_to(eyeW[None, :, :], (K, W, n_obst))
-        exK = np.broadcast_to(eyeK[:, None, :], (K, W, n_obst))
-        Sb = np.broadcast_to(S, wp.shape)
-        Q1, Q2 = q1[:, None, None], q2[:, None, None]
-        ok &= ~_blocked(Sb, wp, Q1, Q2, exW[None])
-        ok &= ~_blocked(wp, pt, Q1, Q2, (exW | exK)[None])
-        ok &= ~_blocked(pt, Sb, Q1, Q2, exK[None])
-        leg1 = _norm(pt - img)
-        leg2 = _norm(pt - S)
-        wb_len = _norm(s_star - img)
-        wb_gain = rho_w[None, None, :] * rho_b / (np.maximum(leg1, MIN_LEG_M)
-                                                  * np.maximum(leg2, MIN_LEG_M))
-        for name in ("wall_blade", "blade_wall"):
-            lengths.append(wb_len.reshape(P, K * W))
-            gains.append(wb_gain.reshape(P, K * W))
-            valid.append(ok.reshape(P, K * W))
-            kind += [name] * (K * W)
-            bl += list(np.repeat(np.arange(K), W))
-            wa += list(np.tile(np.arange(W), K))
-
-    valid_a = np.concatenate(valid, axis=1)
-    length = np.where(valid_a, np.concatenate(lengths, axis=1), np.nan)
-    gain = np.where(valid_a, np.concatenate(gains, axis=1), 0.0)
-    return PathTable(length, gain, valid_a, np.array(kind), np.array(bl, dtype=np.int64),
-                     np.array(wa, dtype=np.int64))
+def _wall_blade_echoes(scene: Scene, blades: _BladeLines,
+                       obst: _Obstacles) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sensor -> wall -> blade -> sensor by the image source: length, gain and validity,
+    each (P, K, W). Valid where the specular point lies on the blade, the unfolded leg
+    passes through the wall segment and none of the three real legs is shadowed."""
+    A, nrm = scene.wall_a, scene.wall_normals
+    wl = scene.wall_b - A
+    wl2 = np.maximum(_dot(wl, wl), 1e-300)
+    S = np.asarray(scene.sensor, dtype=np.float64)
+    C = np.asarray(scene.fan_centre, dtype=np.float64)
+    r0, r1 = scene.hub_radius_m, scene.tip_radius_m
+    u, nu = blades.u, blades.nu
+    K, W = scene.K, obst.walls
+    delta = _sensor_heights(scene)
+    _, h_s = _blade_offsets(scene, blades)
+    # sensor images in the walls (W, 2); broadcast to (P, K, W, 2)
+    img = S - 2 * delta[:, None] * nrm
+    h_i = _dot(img[None, None] - C, nu[:, :, None, :])            # (P, K, W)
+    hs = h_s[..., None]
+    same = (hs * h_i > 0) & (np.abs(hs) > _EPS) & (np.abs(h_i) > _EPS)
+    s_star = S - 2 * hs[..., None] * nu[:, :, None, :]           # sensor mirrored in blade
+    den = np.where(same, h_i + hs, 1.0)
+    lam = np.where(same, h_i / den, 0.0)
+    pt = img + lam[..., None] * (s_star - img)                   # specular point on blade
+    t_p = _dot(pt - C, u[:, :, None, :])
+    ok = same & (t_p >= r0) & (t_p <= r1) & (delta > _EPS)[None, None, :]
+    # the unfolded leg image -> P must pass through the wall segment
+    hp = _dot(pt - A, nrm)                                        # (P, K, W)
+    ok &= hp > _EPS
+    mu = delta / np.where(ok, delta + hp, 1.0)
+    wp = img + mu[..., None] * (pt - img)                        # point on the wall
+    s_w = _dot(wp - A, wl) / wl2
+    ok &= (s_w >= 0) & (s_w <= 1)
+    # shadowing on the three real legs
+    n_obst = W + K
+    exW = np.broadcast_to(obst.own_wall[None, :, :], (K, W, n_obst))
+    exK = np.broadcast_to(obst.own_blade[:, None, :], (K, W, n_obst))
+    Sb = np.broadcast_to(S, wp.shape)
+    Q1, Q2 = obst.q1[:, None, None], obst.q2[:, None, None]
+    ok &= ~_blocked(Sb, wp, Q1, Q2, exW[None])
+    ok &= ~_blocked(wp, pt, Q1, Q2, (exW | exK)[None])
+    ok &= ~_blocked(pt, Sb, Q1, Q2, exK[None])
+    leg1 = _norm(pt - img)
+    leg2 = _norm(pt - S)
+    wb_len = _norm(s_star - img)
+    rho_w = np.asarray(scene.wall_reflection, dtype=np.float64)
+    wb_gain = rho_w[None, None, :] * float(scene.blade_reflectivity) / (
+        np.maximum(leg1, MIN_LEG_M) * np.maximum(leg2, MIN_LEG_M))
+    return wb_len, wb_gain, ok
