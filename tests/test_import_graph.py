@@ -10,8 +10,8 @@ from pathlib import Path
 PKG = "bladesonar"
 #: modules of pure computation (no I/O) and the edges they must never import
 PURE = ("bladesonar.waveform", "bladesonar.dsp", "bladesonar.sim", "bladesonar.analysis",
-        "bladesonar.transitions", "bladesonar.live", "bladesonar.imaging",
-        "bladesonar.reference_fit")
+        "bladesonar.schema", "bladesonar.transitions", "bladesonar.live",
+        "bladesonar.imaging", "bladesonar.reference_fit")
 EDGES = ("bladesonar.io", "bladesonar.service", "bladesonar.commands", "bladesonar.plots",
          "bladesonar.loopback", "bladesonar.cli")
 

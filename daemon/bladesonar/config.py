@@ -9,28 +9,13 @@ all come from one place. Downstream code receives these objects, never raw dicts
 from __future__ import annotations
 
 import dataclasses
-import difflib
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError
-
-_UNSET = object()
-#: Longest text value (names, paths, schedules), characters: a topic, a file name or a
-#: PCM name is far shorter; a longer one is a mistake, not a setting.
-MAX_TEXT = 1024
-
-
-def opt(default: Any, doc: str, *, lo: float | None = None, hi: float | None = None,
-        choices: tuple | None = None, unit: str | None = None, nullable: bool = False,
-        pattern: str | None = None, lo_open: bool = False) -> Any:
-    """Declare a config field: default, one-line doc, and its allowed domain."""
-    return field(default=default, metadata=dict(
-        doc=doc, lo=lo, hi=hi, choices=choices, unit=unit, nullable=nullable,
-        pattern=pattern, lo_open=lo_open))
+from .schema import build, fields_of, opt, section_type
 
 
 @dataclass(frozen=True)
@@ -286,105 +271,6 @@ class Config:
 # Validation
 
 
-def _type_name(tp: Any) -> str:
-    return {int: "an integer", float: "a number", str: "a string", bool: "true or false"}[tp]
-
-
-def _base_type(f: dataclasses.Field) -> Any:
-    t = f.type if not isinstance(f.type, str) else f.type
-    s = str(t)
-    for name, tp in (("bool", bool), ("int", int), ("float", float), ("str", str)):
-        if s.startswith(name):
-            return tp
-    return None
-
-
-def _check_value(key: str, f: dataclasses.Field, value: Any, lines: Mapping[str, int],
-                 source: str | None) -> Any:
-    md = f.metadata
-    line = lines.get(key)
-
-    def fail(allowed: str) -> None:
-        raise ConfigError(key, value, allowed, source=source, line=line)
-
-    if value is None:
-        if md.get("nullable"):
-            return None
-        fail(f"must not be empty ({md['doc']})")
-    tp = _base_type(f)
-    if tp is bool:
-        if not isinstance(value, bool):
-            fail("must be true or false")
-    elif tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            if isinstance(value, float) and value.is_integer():
-                value = int(value)
-            else:
-                fail(_allowed_text(md, "an integer"))
-    elif tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            fail(_allowed_text(md, "a number"))
-        value = float(value)
-        if value != value or value in (float("inf"), float("-inf")):
-            fail(_allowed_text(md, "a finite number"))
-    elif tp is str:
-        if not isinstance(value, str) or not value:
-            fail(_allowed_text(md, "a non-empty string"))
-        if len(value) > MAX_TEXT:
-            fail(f"must be at most {MAX_TEXT} characters long (this one has {len(value)})")
-    if md.get("choices") is not None and value not in md["choices"]:
-        close = difflib.get_close_matches(str(value), [str(c) for c in md["choices"]], 1)
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
-        fail(f"must be one of {', '.join(map(str, md['choices']))}{hint}")
-    lo, hi = md.get("lo"), md.get("hi")
-    if tp in (int, float):
-        if (lo is not None and (value < lo or (md.get("lo_open") and value == lo))) or (
-                hi is not None and value > hi):
-            fail(_allowed_text(md, _type_name(tp)))
-    if md.get("pattern") and not re.fullmatch(md["pattern"], value):
-        fail(f"must match {md['pattern']}")
-    return value
-
-
-def _num(x: float) -> str:
-    return str(int(x)) if float(x).is_integer() else f"{x:g}"
-
-
-def _allowed_text(md: Mapping[str, Any], what: str) -> str:
-    lo, hi, unit = md.get("lo"), md.get("hi"), md.get("unit")
-    u = f" {unit}" if unit else ""
-    if lo is not None and hi is not None:
-        lo_word = "above" if md.get("lo_open") else "from"
-        return f"must be {what} {lo_word} {_num(lo)} to {_num(hi)}{u}"
-    return f"must be {what}"
-
-
-def _build(cls: type, data: Any, prefix: str, lines: Mapping[str, int],
-           source: str | None) -> Any:
-    if data is None:
-        data = {}
-    if not isinstance(data, Mapping):
-        raise ConfigError(prefix.rstrip(".") or "<top>", data, "must be a mapping of keys",
-                          source=source, line=lines.get(prefix.rstrip(".")))
-    fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
-    for k in data:
-        if k not in fields:
-            close = difflib.get_close_matches(str(k), list(fields), 1)
-            hint = f"; did you mean {prefix}{close[0]}?" if close else ""
-            raise ConfigError(f"{prefix}{k}", data[k],
-                              f"unknown key (known here: {', '.join(fields)}){hint}",
-                              source=source, line=lines.get(f"{prefix}{k}"))
-    kwargs = {}
-    for name, f in fields.items():
-        key = f"{prefix}{name}"
-        if dataclasses.is_dataclass(f.default_factory if f.default_factory is not
-                                    dataclasses.MISSING else None):
-            kwargs[name] = _build(f.default_factory, data.get(name), key + ".", lines, source)
-        elif name in data:
-            kwargs[name] = _check_value(key, f, data[name], lines, source)
-    return cls(**kwargs)
-
-
 #: Most samples a reference is folded from (io/wav.py REFERENCE_SAMPLES: its memory).
 _REFERENCE_SAMPLES = 1 << 20
 
@@ -419,7 +305,7 @@ def from_mapping(data: Any, *, source: str | None = None,
                  lines: Mapping[str, int] | None = None) -> Config:
     """Validate a parsed YAML document and build the settings object."""
     lines = lines or {}
-    cfg = _build(Config, data, "", lines, source)
+    cfg = build(Config, data, "", lines, source)
     _check_cross(cfg, lines, source)
     return cfg
 
@@ -457,11 +343,9 @@ def load(path: str | Path | None) -> Config:
 
 def iter_fields(cls: type = Config, prefix: str = ""):
     """Yield (dotted key, field) for every leaf setting: drives docs and the example file."""
-    for f in dataclasses.fields(cls):
-        if f.metadata.get("internal"):
-            continue
-        fac = f.default_factory if f.default_factory is not dataclasses.MISSING else None
-        if fac is not None and dataclasses.is_dataclass(fac):
-            yield from iter_fields(fac, f"{prefix}{f.name}.")
+    for f in fields_of(cls).values():
+        section = section_type(f)
+        if section is not None:
+            yield from iter_fields(section, f"{prefix}{f.name}.")
         else:
             yield f"{prefix}{f.name}", f

@@ -10,6 +10,7 @@ import dataclasses
 import json
 
 from . import config
+from .schema import number_text
 
 
 def _domain(md: dict) -> str:
@@ -18,7 +19,7 @@ def _domain(md: dict) -> str:
         parts.append("one of " + ", ".join(map(str, md["choices"])))
     lo, hi = md.get("lo"), md.get("hi")
     if lo is not None and hi is not None:
-        parts.append(f"{'>' if md.get('lo_open') else ''}{config._num(lo)}..{config._num(hi)}")
+        parts.append(f"{'>' if md.get('lo_open') else ''}{number_text(lo)}..{number_text(hi)}")
     if md.get("unit"):
         parts.append(md["unit"])
     if md.get("nullable"):
