@@ -159,7 +159,7 @@ def test_bad_nuisances_are_refused_naming_the_key(data, key):
         parse(data)
     assert key in str(e.value)
     if "rt60" == next(iter(data)):
-        assert "did you mean rt60_s" in str(e.value)
+        assert "did you mean nuisances.rt60_s" in str(e.value)
 
 
 def test_command_line_nuisances_override_the_scene():

@@ -101,3 +101,28 @@ def test_schedule_forms_and_errors():
         with pytest.raises(ConfigError):
             parse(bad, key="--schedule")
     assert math.isclose(parse("ccw:3:1").max_abs_hz, 3.0)
+
+
+def test_scene_numbers_are_checked_by_the_config_schema_with_file_line_value_and_fix(tmp_path):
+    """One schema helper (bladesonar.schema) checks config and scene files alike: the
+    refusal names the file and line, the key, the value as written and the range or fix."""
+    p = tmp_path / "s.yaml"
+    p.write_text("room:\n  vertices: [[0,0],[5,0],[5,4],[0,4]]\nsensor: [1, 1]\n"
+                 "fan:\n  centre: [3, 2]\n  blades: 0\n  reflectivity: 2\n"
+                 "nuisances:\n  rt60_s: 9\n")
+    with pytest.raises(ConfigError) as e:
+        load_scene(p)
+    assert str(e.value) == (f"{p}:6: fan.blades = 0: must be an integer from 1 to 16 (or "
+                            "left out to use the config's scene.blades)")
+    p.write_text(p.read_text().replace("blades: 0", "blades: 4"))
+    with pytest.raises(ConfigError) as e:
+        load_scene(p)
+    assert str(e.value) == f"{p}:7: fan.reflectivity = 2: must be a number from 0 to 1"
+    p.write_text(p.read_text().replace("reflectivity: 2", "reflectivity: 1"))
+    with pytest.raises(ConfigError) as e:
+        load_scene(p)
+    assert str(e.value) == (f"{p}:9: nuisances.rt60_s = 9: must be a number from 0 to 3 (late "
+                            "reverberation: 60 dB decay time, s (0: none))")
+    p.write_text(p.read_text().replace("rt60_s: 9", "rt60_s: 0.5"))
+    nz = load_scene(p).nuisances
+    assert nz is not None and nz.rt60_s == 0.5

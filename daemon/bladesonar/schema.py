@@ -29,12 +29,12 @@ MAX_TEXT = 1024
 def opt(default: Any, doc: str, *, lo: float | None = None, hi: float | None = None,
         choices: tuple[Any, ...] | None = None, unit: str | None = None,
         nullable: bool = False, pattern: str | None = None, lo_open: bool = False,
-        fix: str | None = None) -> Any:
-    """Declare a document field: default, one-line doc, and its allowed domain (``fix``:
-    what to do instead, added to a refusal)."""
+        note: str | None = None) -> Any:
+    """Declare a document field: default, one-line doc, and its allowed domain (``note``:
+    said in brackets after a refusal: what the value means or what to do instead)."""
     return field(default=default, metadata=dict(
         doc=doc, lo=lo, hi=hi, choices=choices, unit=unit, nullable=nullable,
-        pattern=pattern, lo_open=lo_open, fix=fix))
+        pattern=pattern, lo_open=lo_open, note=note))
 
 
 def number_text(x: float) -> str:
@@ -67,10 +67,11 @@ def check_value(key: str, f: dataclasses.Field[Any], value: Any, lines: Mapping[
     """``value`` of the field ``f`` at dotted ``key`` checked against its declaration;
     returns it as its type (an integral float as an int, an int as a float)."""
     md = f.metadata
-    fix = f" ({md['fix']})" if md.get("fix") else ""
+    note = f" ({md['note']})" if md.get("note") else ""
+    given = value   # named in a refusal as written
 
     def fail(allowed: str) -> None:
-        raise ConfigError(key, value, allowed + fix, source=source, line=lines.get(key))
+        raise ConfigError(key, given, allowed + note, source=source, line=lines.get(key))
 
     if value is None:
         if md.get("nullable"):

@@ -18,73 +18,66 @@ All defaults are "absent", so a scene without the mapping renders as before.
 
 from __future__ import annotations
 
-import difflib
-import math
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
+from .. import schema
 from ..errors import ConfigError
+from ..schema import opt
 
-#: key: (default, low, high, meaning). Ranges are inclusive.
-KEYS: dict[str, tuple[float, float, float, str]] = {
-    "capture_gain_db": (0.0, -120.0, 60.0, "microphone gain before the converter, dB "
-                        "(e.g. -50 brings the fan echo to a few LSB of 16 bits)"),
-    "bits": (0, 0, 32, "converter resolution: quantise to this many bits (0: float; a "
-             "16-bit WAV quantises anyway)"),
-    "speaker_highpass_hz": (0.0, 0.0, 5000.0, "small speaker: 2nd-order high-pass corner, "
-                            "Hz (0: none)"),
-    "speaker_resonance_hz": (0.0, 0.0, 15000.0, "small speaker: resonance, Hz (0: none)"),
-    "speaker_q": (3.0, 0.5, 20.0, "quality factor of the speaker's resonance"),
-    "speaker_resonance_db": (10.0, 0.0, 30.0, "peak of the resonance over the flat "
-                             "response, dB"),
-    "agc_db": (0.0, 0.0, 20.0, "microphone AGC: peak gain wander, dB (0: none)"),
-    "agc_period_s": (8.0, 0.5, 600.0, "slowest period of the AGC's wander, s"),
-    "burst_fraction": (0.0, 0.0, 0.5, "share of the time with interference bursts "
-                       "(speech, clatter)"),
-    "burst_db": (10.0, -40.0, 60.0, "burst power over the echoes' (all echoes in the "
-                 "range gate), dB"),
-    "burst_s": (0.3, 0.01, 10.0, "length of one burst, s"),
-    "rt60_s": (0.0, 0.0, 3.0, "late reverberation: 60 dB decay time, s (0: none)"),
-    "reverb_db": (0.0, -60.0, 30.0, "late tail's whole energy relative to the first-order "
-                  "wall echoes' together, dB"),
-    "reverb_fan_share": (0.02, 0.0, 1.0, "share of the tail's energy that comes by the fan "
-                         "and changes with its angle"),
-    "speed_of_sound": (0.0, 0.0, 2000.0, "the room's speed of sound now, m/s (0: the "
-                       "config's scene.speed_of_sound; 343 + 0.6 per degree C)"),
-    "walker_speed_m_s": (0.0, 0.0, 5.0, "a person walking across the room at this "
-                         "speed, m/s (0: nobody)"),
-    "walker_start_s": (2.0, 0.0, 1e6, "when the person enters (at the room's left "
-                       "edge), s"),
-    "walker_y_m": (-1.0, -1.0, 1000.0, "the line they walk along (y, metres); -1: "
-                   "halfway between the sensor and the fan"),
-    "walker_reflectivity": (1.0, 0.0, 10.0, "the person's echo gain (a blade is 1)"),
-}
+
+def _setting(default: float, meaning: str, *, lo: float, hi: float) -> Any:
+    """A nuisance setting: its meaning is said with a refused value too."""
+    return opt(default, meaning, lo=lo, hi=hi, note=meaning)
 
 
 @dataclass(frozen=True)
 class Nuisances:
-    """The settings of :data:`KEYS`; every default is the ideal device and room."""
+    """The settings, each with its default (the ideal device and room), meaning and range
+    (inclusive): :data:`KEYS`."""
 
-    capture_gain_db: float = 0.0
-    bits: int = 0
-    speaker_highpass_hz: float = 0.0
-    speaker_resonance_hz: float = 0.0
-    speaker_q: float = 3.0
-    speaker_resonance_db: float = 10.0
-    agc_db: float = 0.0
-    agc_period_s: float = 8.0
-    burst_fraction: float = 0.0
-    burst_db: float = 10.0
-    burst_s: float = 0.3
-    rt60_s: float = 0.0
-    reverb_db: float = 0.0
-    reverb_fan_share: float = 0.02
-    speed_of_sound: float = 0.0
-    walker_speed_m_s: float = 0.0
-    walker_start_s: float = 2.0
-    walker_y_m: float = -1.0
-    walker_reflectivity: float = 1.0
+    capture_gain_db: float = _setting(
+        0.0, "microphone gain before the converter, dB (e.g. -50 brings the fan echo to a few LSB "
+        "of 16 bits)", lo=-120.0, hi=60.0)
+    bits: int = _setting(
+        0, "converter resolution: quantise to this many bits (0: float; a 16-bit WAV quantises "
+        "anyway)", lo=0, hi=32)
+    speaker_highpass_hz: float = _setting(
+        0.0, "small speaker: 2nd-order high-pass corner, Hz (0: none)", lo=0.0, hi=5000.0)
+    speaker_resonance_hz: float = _setting(
+        0.0, "small speaker: resonance, Hz (0: none)", lo=0.0, hi=15000.0)
+    speaker_q: float = _setting(3.0, "quality factor of the speaker's resonance", lo=0.5, hi=20.0)
+    speaker_resonance_db: float = _setting(
+        10.0, "peak of the resonance over the flat response, dB", lo=0.0, hi=30.0)
+    agc_db: float = _setting(0.0, "microphone AGC: peak gain wander, dB (0: none)", lo=0.0, hi=20.0)
+    agc_period_s: float = _setting(8.0, "slowest period of the AGC's wander, s", lo=0.5, hi=600.0)
+    burst_fraction: float = _setting(
+        0.0, "share of the time with interference bursts (speech, clatter)", lo=0.0, hi=0.5)
+    burst_db: float = _setting(
+        10.0, "burst power over the echoes' (all echoes in the range gate), dB", lo=-40.0, hi=60.0)
+    burst_s: float = _setting(0.3, "length of one burst, s", lo=0.01, hi=10.0)
+    rt60_s: float = _setting(
+        0.0, "late reverberation: 60 dB decay time, s (0: none)", lo=0.0, hi=3.0)
+    reverb_db: float = _setting(
+        0.0, "late tail's whole energy relative to the first-order wall echoes' together, dB",
+        lo=-60.0, hi=30.0)
+    reverb_fan_share: float = _setting(
+        0.02, "share of the tail's energy that comes by the fan and changes with its angle",
+        lo=0.0, hi=1.0)
+    speed_of_sound: float = _setting(
+        0.0, "the room's speed of sound now, m/s (0: the config's scene.speed_of_sound; 343 + 0.6 "
+        "per degree C)", lo=0.0, hi=2000.0)
+    walker_speed_m_s: float = _setting(
+        0.0, "a person walking across the room at this speed, m/s (0: nobody)", lo=0.0, hi=5.0)
+    walker_start_s: float = _setting(
+        2.0, "when the person enters (at the room's left edge), s", lo=0.0, hi=1e6)
+    walker_y_m: float = _setting(
+        -1.0, "the line they walk along (y, metres); -1: halfway between the sensor and the fan",
+        lo=-1.0, hi=1000.0)
+    walker_reflectivity: float = _setting(
+        1.0, "the person's echo gain (a blade is 1)", lo=0.0, hi=10.0)
 
     @property
     def speaker(self) -> bool:
@@ -101,25 +94,28 @@ class Nuisances:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+_FIELDS = schema.fields_of(Nuisances)
+#: Every setting, in the order of :class:`Nuisances`.
+KEYS = tuple(_FIELDS)
+
+
 def parse(data: Any, *, key: str = "nuisances", source: str | None = None,
           lines: Mapping[str, int] | None = None, base: Nuisances | None = None) -> Nuisances:
-    """Validate a mapping of :data:`KEYS` (scene ``nuisances:``) over ``base``."""
+    """Validate a mapping of :data:`KEYS` (scene ``nuisances:``) over ``base`` with the
+    schema of :class:`Nuisances`."""
     lines = lines or {}
     if data is None:
         return base or Nuisances()
     if not isinstance(data, Mapping):
         raise ConfigError(key, data, "must be a mapping of nuisance settings, e.g. "
                           "{rt60_s: 0.5, agc_db: 3}", source=source, line=lines.get(key))
-    out: dict[str, Any] = dict((base or Nuisances()).describe())   # bits is an int
+    schema.check_keys(data, KEYS, f"{key}.", lines, source, what="unknown nuisance")
+    changes = {}
     for k, v in data.items():
         name = f"{key}.{k}"
-        if k not in KEYS:
-            close = difflib.get_close_matches(str(k), KEYS, 1)
-            hint = f"; did you mean {close[0]}?" if close else ""
-            raise ConfigError(name, v, f"unknown nuisance (known: {', '.join(KEYS)}){hint}",
-                              source=source, line=lines.get(name, lines.get(key)))
-        out[k] = _value(name, k, v, source, lines.get(name, lines.get(key)))
-    return Nuisances(**out)
+        changes[k] = _check_special(name, k, schema.check_value(name, _FIELDS[k], v, lines,
+                                                                source), lines, source)
+    return dataclasses.replace(base or Nuisances(), **changes)
 
 
 def parse_assignments(items: list[str] | None, base: Nuisances | None = None) -> Nuisances:
@@ -137,19 +133,17 @@ def parse_assignments(items: list[str] | None, base: Nuisances | None = None) ->
     return parse(data, key="--nuisance", base=base)
 
 
-def _value(name: str, k: str, v: Any, source: str | None, line: int | None) -> float:
-    default, lo, hi, meaning = KEYS[k]
-    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(float(v)) \
-        and lo <= float(v) <= hi
-    if ok and k == "bits":
-        ok = float(v) == int(v) and (int(v) == 0 or int(v) >= 4)
-    if ok and k == "walker_y_m":
-        ok = float(v) == -1.0 or float(v) >= 0.0
-    if not ok:
-        extra = " (a whole number: 0 or 4 to 32)" if k == "bits" else ""
-        raise ConfigError(name, v, f"must be a number from {lo:g} to {hi:g}{extra}: {meaning}",
-                          source=source, line=line)
-    return int(v) if k == "bits" else float(v)
+def _check_special(name: str, k: str, v: Any, lines: Mapping[str, int],
+                   source: str | None) -> Any:
+    """The two settings whose range has a hole: ``bits`` (0 or 4 to 32) and ``walker_y_m``
+    (-1 or from 0)."""
+    if k == "bits" and 0 < v < 4:
+        raise ConfigError(name, v, "must be a whole number: 0 or 4 to 32 (converter "
+                          "resolution; 0: float)", source=source, line=lines.get(name))
+    if k == "walker_y_m" and v != -1.0 and v < 0.0:
+        raise ConfigError(name, v, "must be -1 (halfway between the sensor and the fan) or "
+                          "a number from 0 to 1000", source=source, line=lines.get(name))
+    return v
 
 
 _SPEAKER = {"speaker_highpass_hz": 400.0, "speaker_resonance_hz": 2500.0}

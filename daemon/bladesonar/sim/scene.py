@@ -17,15 +17,16 @@ Blade count: the scene may state ``fan.blades``; it must then equal the config's
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, NoReturn
 
 import numpy as np
 
+from .. import schema
 from ..errors import ConfigError
+from ..schema import opt
 from . import nuisances as _nuisances
 from . import schedule as _schedule
 
@@ -33,15 +34,6 @@ from . import schedule as _schedule
 DEFAULT_BLADES = 4
 #: The sensor must sit at least this far inside every wall.
 MIN_WALL_CLEARANCE_M = 1e-3
-
-_KEYS = {
-    "": ("name", "room", "sensor", "fan", "coupling_gain", "schedule", "description",
-         "nuisances"),
-    "room.": ("vertices", "reflection"),
-    "fan.": ("centre", "center", "blades", "blade_length_m", "hub_radius_m",
-             "start_angle_deg", "reflectivity"),
-}
-
 
 #: Most walls (vertices) a room may have: the wall checks are quadratic and the echo paths
 #: grow with the walls; 5000 vertices once made simulate run for minutes.
@@ -131,117 +123,160 @@ class Scene:
     @classmethod
     def from_mapping(cls, data: Any, *, source: str | None = None,
                      lines: Mapping[str, int] | None = None) -> Scene:
-        """Validate a parsed scene document (see config/scenes/paper-room.yaml)."""
+        """Validate a parsed scene document (see config/scenes/paper-room.yaml): its keys
+        and numbers by the schema (:class:`SceneFile`), then the floor plan."""
         lines = lines or {}
 
-        def fail(key: str, value: Any, allowed: str) -> None:
+        def fail(key: str, value: Any, allowed: str) -> NoReturn:
             raise ConfigError(key, value, allowed, source=source, line=lines.get(key))
 
-        if not isinstance(data, Mapping):
-            fail("<scene>", data, "must be a mapping with room, sensor and fan")
-        _check_keys(data, "", fail)
-        for req in ("room", "sensor", "fan"):
-            if req not in data:
-                fail(req, None, "is required (a scene needs room, sensor and fan; see "
-                     "config/scenes/paper-room.yaml)")
-        room, fan = data["room"], data["fan"]
-        if not isinstance(room, Mapping):
-            fail("room", room, "must be a mapping with vertices and reflection")
-        if not isinstance(fan, Mapping):
-            fail("fan", fan, "must be a mapping with centre, blade_length_m, ...")
-        _check_keys(room, "room.", fail)
-        _check_keys(fan, "fan.", fail)
-
-        verts = room.get("vertices")
-        if (not isinstance(verts, (list, tuple)) or not 3 <= len(verts) <= MAX_WALLS
-                or not all(_is_point(v) for v in verts)):
-            fail("room.vertices", verts, f"must be a list of 3 to {MAX_WALLS} [x, y] points "
-                 "in metres, e.g. [[0, 0], [4, 0], [4, 3], [0, 3]]")
-        V = np.asarray(verts, dtype=np.float64)
-        nw = len(V)
-        seg = np.hypot(*(np.roll(V, -1, axis=0) - V).T)
-        if np.any(seg < 1e-6):
-            fail("room.vertices", verts, "has a zero-length wall (repeated vertex); "
-                 "list each corner once, without closing the polygon")
-        if abs(_signed_area(V)) < 1e-6:
-            fail("room.vertices", verts, "encloses no area")
-        if _self_intersects(V):
-            fail("room.vertices", verts, "walls cross each other; list the corners in "
-                 "order around the room")
-
-        refl = room.get("reflection", 0.5)
-        if _is_num(refl):
-            refl = [float(refl)] * nw
-        if (not isinstance(refl, (list, tuple)) or len(refl) != nw
-                or not all(_is_num(r) and 0.0 <= float(r) <= 1.0 for r in refl)):
-            fail("room.reflection", room.get("reflection"), f"must be a number from 0 to 1 or "
-                 f"a list of {nw} such numbers, one per wall (wall i: vertex i -> i+1)")
-
-        sensor = data["sensor"]
-        if not _is_point(sensor):
-            fail("sensor", sensor, "must be an [x, y] point in metres")
-        centre = fan.get("centre", fan.get("center"))
+        doc = _read_document(data, source, lines, fail)
+        room, fan = doc.room, doc.fan
+        V = _room_polygon(room.vertices, fail)
+        refl = _wall_reflections(room.reflection, len(V), fail)
+        if not _is_point(doc.sensor):
+            fail("sensor", doc.sensor, "must be an [x, y] point in metres")
+        centre = fan.centre if "centre" in data["fan"] else fan.center
         if not _is_point(centre):
             fail("fan.centre", centre, "must be an [x, y] point in metres")
-
-        def num(key: str, m: Mapping, name: str, default: float, lo: float, hi: float,
-                lo_open: bool = False) -> float:
-            v = m.get(name, default)
-            ok = _is_num(v) and (lo < float(v) if lo_open else lo <= float(v)) and float(v) <= hi
-            if not ok:
-                word = "above" if lo_open else "from"
-                fail(key, v, f"must be a number {word} {lo:g} to {hi:g}")
-            return float(v)
-
-        length = num("fan.blade_length_m", fan, "blade_length_m", 0.58, 0.0, 100.0, True)
-        hub = num("fan.hub_radius_m", fan, "hub_radius_m", 0.0, 0.0, 100.0)
-        start = num("fan.start_angle_deg", fan, "start_angle_deg", 0.0, -1e6, 1e6)
-        rho_b = num("fan.reflectivity", fan, "reflectivity", 1.0, 0.0, 1.0)
-        gain = num("coupling_gain", data, "coupling_gain", 1.0, 0.0, 1e3)
-        blades = fan.get("blades")
-        if blades is not None and (isinstance(blades, bool) or not isinstance(blades, int)
-                                   or not 1 <= blades <= 16):
-            fail("fan.blades", blades, "must be an integer from 1 to 16 (or left out to use "
-                 "the config's scene.blades)")
-
         nz = None
-        if data.get("nuisances") is not None:
-            nz = _nuisances.parse(data["nuisances"], source=source, lines=lines)
-        sched = data.get("schedule")
-        if sched is not None:
-            sched = _schedule.parse(sched, key="schedule", source=source).to_string()
-
-        S, C = np.asarray(sensor, float), np.asarray(centre, float)
-        if not _inside(S, V) or _dist_to_walls(S, V).min() < MIN_WALL_CLEARANCE_M:
-            fail("sensor", sensor, "is not inside the room; put it strictly inside the "
-                 f"polygon room.vertices (at least {MIN_WALL_CLEARANCE_M * 1000:g} mm from "
-                 "every wall)")
-        if not _inside(C, V):
-            fail("fan.centre", centre, "is not inside the room; put it inside room.vertices")
-        clear = _dist_to_walls(C, V).min()
-        if clear <= hub + length:
-            fail("fan.blade_length_m", length, f"blade tips ({hub + length:g} m from the "
-                 f"centre) would reach a wall ({clear:.3f} m away); shorten the blades or "
-                 "move fan.centre")
+        if doc.nuisances is not None:
+            nz = _nuisances.parse(doc.nuisances, source=source, lines=lines)
+        sched = None
+        if doc.schedule is not None:
+            sched = _schedule.parse(doc.schedule, key="schedule", source=source).to_string()
+        S, C = np.asarray(doc.sensor, float), np.asarray(centre, float)
+        _check_placement(S, C, V, fan, doc.sensor, centre, fail)
         return cls(vertices=tuple((float(x), float(y)) for x, y in V),
-                   wall_reflection=tuple(float(r) for r in refl),
+                   wall_reflection=refl,
                    sensor=(float(S[0]), float(S[1])), fan_centre=(float(C[0]), float(C[1])),
-                   blade_length_m=length, hub_radius_m=hub, blades=blades,
-                   start_angle_rad=math.radians(start), blade_reflectivity=rho_b,
-                   coupling_gain=gain, schedule=sched, nuisances=nz,
-                   name=str(data.get("name", "scene")), source=source)
+                   blade_length_m=fan.blade_length_m, hub_radius_m=fan.hub_radius_m,
+                   blades=fan.blades, start_angle_rad=math.radians(fan.start_angle_deg),
+                   blade_reflectivity=fan.reflectivity, coupling_gain=doc.coupling_gain,
+                   schedule=sched, nuisances=nz, name=str(doc.name), source=source)
+
+
+# ---------------------------------------------------------------------- the file's schema
+
+@dataclass(frozen=True)
+class RoomFile:
+    """A scene file's ``room:``."""
+
+    vertices: Any = opt(None, "room polygon corners [[x, y], ...] in order around the "
+                        "room, without closing it", unit="m", nullable=True)
+    reflection: Any = opt(0.5, "pressure reflection coefficient of every wall (0 to 1), or "
+                          "a list of one per wall (wall i: vertex i -> i+1)", nullable=True)
+
+
+@dataclass(frozen=True)
+class FanFile:
+    """A scene file's ``fan:``."""
+
+    centre: Any = opt(None, "fan hub centre [x, y]", unit="m", nullable=True)
+    center: Any = opt(None, "the same as centre", unit="m", nullable=True)
+    blades: int | None = opt(None, "blade count; must equal the config's scene.blades",
+                             lo=1, hi=16, nullable=True,
+                             note="or left out to use the config's scene.blades")
+    blade_length_m: float = opt(0.58, "blade length from the hub", lo=0.0, hi=100.0,
+                                lo_open=True)
+    hub_radius_m: float = opt(0.0, "where the blades start, from the centre", lo=0.0,
+                              hi=100.0)
+    start_angle_deg: float = opt(0.0, "fan angle at time 0 (blade 0 from +x, ccw)",
+                                 lo=-1e6, hi=1e6)
+    reflectivity: float = opt(1.0, "blade reflection coefficient", lo=0.0, hi=1.0)
+
+
+@dataclass(frozen=True)
+class SceneFile:
+    """A scene file as written, every key and number checked (io/scene_file.py reads it;
+    :meth:`Scene.from_mapping` checks the floor plan and builds the scene)."""
+
+    name: Any = opt("scene", "the scene's name in truth files and reports", nullable=True)
+    description: Any = opt(None, "free text", nullable=True)
+    room: RoomFile = field(default_factory=RoomFile)
+    sensor: Any = opt(None, "co-located speaker and microphone [x, y]", unit="m",
+                      nullable=True)
+    fan: FanFile = field(default_factory=FanFile)
+    coupling_gain: float = opt(1.0, "speaker-to-microphone gain of the direct coupling",
+                               lo=0.0, hi=1e3)
+    schedule: Any = opt(None, "rotation schedule DIR:RATE_HZ:SECONDS,... (sim/schedule.py)",
+                        nullable=True)
+    nuisances: Any = opt(None, "what a real device and room add (sim/nuisances.py)",
+                         nullable=True)
+
+
+def _read_document(data: Any, source: str | None, lines: Mapping[str, int],
+                   fail: Callable[[str, Any, str], NoReturn]) -> SceneFile:
+    """The document's keys and numbers checked by the schema; room, sensor and fan
+    required."""
+    if not isinstance(data, Mapping):
+        fail("<scene>", data, "must be a mapping with room, sensor and fan")
+    schema.check_keys(data, schema.fields_of(SceneFile), "", lines, source)
+    for req in ("room", "sensor", "fan"):
+        if req not in data:
+            fail(req, None, "is required (a scene needs room, sensor and fan; see "
+                 "config/scenes/paper-room.yaml)")
+    if not isinstance(data["room"], Mapping):
+        fail("room", data["room"], "must be a mapping with vertices and reflection")
+    if not isinstance(data["fan"], Mapping):
+        fail("fan", data["fan"], "must be a mapping with centre, blade_length_m, ...")
+    doc: SceneFile = schema.build(SceneFile, data, "", lines, source)
+    return doc
+
+
+def _room_polygon(verts: Any, fail: Callable[[str, Any, str], NoReturn]) -> np.ndarray:
+    """``room.vertices`` as an (n, 2) array: 3 to MAX_WALLS corners of a simple polygon
+    with an area."""
+    if (not isinstance(verts, (list, tuple)) or not 3 <= len(verts) <= MAX_WALLS
+            or not all(_is_point(v) for v in verts)):
+        fail("room.vertices", verts, f"must be a list of 3 to {MAX_WALLS} [x, y] points "
+             "in metres, e.g. [[0, 0], [4, 0], [4, 3], [0, 3]]")
+    V = np.asarray(verts, dtype=np.float64)
+    seg = np.hypot(*(np.roll(V, -1, axis=0) - V).T)
+    if np.any(seg < 1e-6):
+        fail("room.vertices", verts, "has a zero-length wall (repeated vertex); "
+             "list each corner once, without closing the polygon")
+    if abs(_signed_area(V)) < 1e-6:
+        fail("room.vertices", verts, "encloses no area")
+    if _self_intersects(V):
+        fail("room.vertices", verts, "walls cross each other; list the corners in "
+             "order around the room")
+    return V
+
+
+def _wall_reflections(refl: Any, nw: int,
+                      fail: Callable[[str, Any, str], NoReturn]) -> tuple[float, ...]:
+    """``room.reflection``: one number for every wall, or one per wall, each 0 to 1."""
+    given = refl
+    if _is_num(refl):
+        refl = [float(refl)] * nw
+    if (not isinstance(refl, (list, tuple)) or len(refl) != nw
+            or not all(_is_num(r) and 0.0 <= float(r) <= 1.0 for r in refl)):
+        fail("room.reflection", given, f"must be a number from 0 to 1 or "
+             f"a list of {nw} such numbers, one per wall (wall i: vertex i -> i+1)")
+    return tuple(float(r) for r in refl)
+
+
+def _check_placement(S: np.ndarray, C: np.ndarray, V: np.ndarray, fan: FanFile,
+                     sensor: Any, centre: Any,
+                     fail: Callable[[str, Any, str], NoReturn]) -> None:
+    """The sensor strictly inside the room, the fan's centre inside and its blade tips
+    clear of every wall."""
+    if not _inside(S, V) or _dist_to_walls(S, V).min() < MIN_WALL_CLEARANCE_M:
+        fail("sensor", sensor, "is not inside the room; put it strictly inside the "
+             f"polygon room.vertices (at least {MIN_WALL_CLEARANCE_M * 1000:g} mm from "
+             "every wall)")
+    if not _inside(C, V):
+        fail("fan.centre", centre, "is not inside the room; put it inside room.vertices")
+    clear = _dist_to_walls(C, V).min()
+    hub, length = fan.hub_radius_m, fan.blade_length_m
+    if clear <= hub + length:
+        fail("fan.blade_length_m", length, f"blade tips ({hub + length:g} m from the "
+             f"centre) would reach a wall ({clear:.3f} m away); shorten the blades or "
+             "move fan.centre")
 
 
 # ---------------------------------------------------------------------- helpers
-
-def _check_keys(m: Mapping, prefix: str, fail) -> None:
-    known = _KEYS[prefix]
-    for k in m:
-        if k not in known:
-            close = difflib.get_close_matches(str(k), known, 1)
-            hint = f"; did you mean {prefix}{close[0]}?" if close else ""
-            fail(f"{prefix}{k}", m[k], f"unknown key (known here: {', '.join(known)}){hint}")
-
 
 def _is_num(v: Any) -> bool:
     return (isinstance(v, (int, float)) and not isinstance(v, bool)
