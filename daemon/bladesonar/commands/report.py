@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import Any
 
 EPILOG = """\
@@ -109,8 +110,6 @@ def load_grid(path: str):
 
 
 def _scenes_dir(args, cfg):
-    from pathlib import Path
-
     if args.scenes:
         return Path(args.scenes)
     mine = cfg.path("scenes")
@@ -120,24 +119,17 @@ def _scenes_dir(args, cfg):
 
 
 def run(args: argparse.Namespace) -> int:
-    import datetime
-    import os
-    import time
-    from pathlib import Path
+    import dataclasses
 
     from .. import config
     from ..errors import ConfigError
     from ..io.scene_file import load_scene
-    from ..progress import Progress
-    from ..report_text import markdown
     from ..runtime_report import (
-        TRANSITION_TARGETS_S,
         aggregate,
         aggregate_reversals,
         aggregate_transitions,
         default_grid,
         envelope,
-        jobs,
         limit_notes,
         refusal_notes,
     )
@@ -158,14 +150,38 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError("--out", str(out), f"cannot be created ({exc.strerror})") from exc
 
+    ref_info, records, wall = _sweep(args.jobs, dict(scenes=scenes, cfg=cfg, grid=grid))
+    rows = aggregate(records)
+    env = envelope(rows)
+    rep = dict(format="bladesonar-report/1", meta=_meta(args, cfg, grid, records, wall),
+               grid=dataclasses.asdict(grid), envelope=env,
+               limits=limit_notes(rows, cfg.prf_hz, cfg.tracking.slew_limit,
+                                  grid.ref_rate_hz) + refusal_notes(records),
+               references=ref_info, rows=rows, reversals=aggregate_reversals(records),
+               transitions=aggregate_transitions(records))
+    _write(out, rep, records, plots=not args.no_plots)
+    print(json.dumps(dict(out=str(out), trials=len(records), wall_s=round(wall, 1),
+                          envelope=env)))
+    return 0
+
+
+def _sweep(n_jobs: int, state: dict[str, Any]) -> tuple[dict[str, Any], list[dict[str, Any]],
+                                                         float]:
+    """The references of the grid, then every trial, on ``n_jobs`` processes: the
+    references' figures by 'scene, K', the trials' records and the wall time, s."""
+    import time
+
+    from ..progress import Progress
+    from ..runtime_report import jobs
+
+    grid = state["grid"]
     t_wall = time.perf_counter()
-    state = dict(scenes=scenes, cfg=cfg, grid=grid)
     todo = jobs(grid)
     refkeys = grid.references()
     prog = Progress("report", len(todo) + len(refkeys), " jobs")
     done = 0
     refs, ref_info = {}, {}
-    with _pool(args.jobs, state) as pool:
+    with _pool(n_jobs, state) as pool:
         for key, ref, cpu in pool.imap_unordered(_ref_task, refkeys):
             refs[key] = ref
             m = ref.meta
@@ -175,22 +191,27 @@ def run(args: argparse.Namespace) -> int:
             done += 1
             prog.update(done)
     state["refs"] = refs
-    records = []
-    with _pool(args.jobs, state) as pool:
+    records: list[dict[str, Any]] = []
+    with _pool(n_jobs, state) as pool:
         for recs in pool.imap_unordered(_job_task, todo):
             records.extend(recs)
             done += 1
             prog.update(done)
     prog.close()
-    wall = time.perf_counter() - t_wall
+    return ref_info, records, time.perf_counter() - t_wall
 
-    rows = aggregate(records)
-    rev = aggregate_reversals(records)
-    trans = aggregate_transitions(records)
-    env = envelope(rows)
+
+def _meta(args: argparse.Namespace, cfg: Any, grid: Any, records: list[dict[str, Any]],
+          wall: float) -> dict[str, Any]:
+    """How the report was made: the command, the machine, the costs, the grid's settings."""
+    import datetime
+    import os
+
+    from ..runtime_report import TRANSITION_TARGETS_S, jobs
+
     cmd = "bladesonar report " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 and \
         sys.argv[1] == "report" else "bladesonar report" + (" --quick" if args.quick else "")
-    meta = dict(command=os.environ.get("BLADESONAR_REPORT_COMMAND", cmd),
+    return dict(command=os.environ.get("BLADESONAR_REPORT_COMMAND", cmd),
                 date=datetime.datetime.now().strftime("%Y-%m-%d %H:%M"),
                 cpus=os.cpu_count(), jobs=args.jobs, wall_s=round(wall, 2),
                 cpu_s=round(sum(r["cpu_s"] for r in records), 2), trials=len(records),
@@ -201,15 +222,18 @@ def run(args: argparse.Namespace) -> int:
                 transitions_drift_ppm=grid.transitions_drift_ppm,
                 transition_targets_s=TRANSITION_TARGETS_S,
                 prf_hz=cfg.prf_hz, aliasing_limit_hz_by_blades={
-                    str(k): cfg.prf_hz / (2 * k) for k in sorted({j.blades for j in todo})})
-    import dataclasses
+                    str(k): cfg.prf_hz / (2 * k) for k in sorted({j.blades
+                                                                  for j in jobs(grid)})})
 
-    rep = dict(format="bladesonar-report/1", meta=meta, grid=dataclasses.asdict(grid),
-               envelope=env, limits=limit_notes(rows, cfg.prf_hz, cfg.tracking.slew_limit,
-                                                grid.ref_rate_hz) + refusal_notes(records),
-               references=ref_info, rows=rows, reversals=rev, transitions=trans)
+
+def _write(out: Path, rep: dict[str, Any], records: list[dict[str, Any]], *,
+           plots: bool) -> None:
+    """report.json, trials.jsonl (sorted), the plots and report.md into ``out``."""
+    from ..report_text import markdown
+
+    rows = rep["rows"]
     images = {}
-    if not args.no_plots:
+    if plots:
         from ..plots import report as rp
 
         if any(r["family"] == "window_snr" for r in rows):
@@ -225,6 +249,3 @@ def run(args: argparse.Namespace) -> int:
                                                 r["seed"], r.get("segment", 0))):
             f.write(json.dumps(r, sort_keys=True) + "\n")
     (out / "report.md").write_text(markdown(rep, images=images), encoding="utf-8")
-    print(json.dumps(dict(out=str(out), trials=len(records), wall_s=round(wall, 1),
-                          envelope=env)))
-    return 0
