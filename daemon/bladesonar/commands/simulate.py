@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+from pathlib import Path
+from typing import Any
 
 EPILOG = """\
 conventions:
@@ -75,6 +77,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="YAML config for sample rate, pri_samples, pulse shape, amplitude, "
                         "speed of sound, blade count and range gate (default: built-in "
                         "defaults: 44100 Hz, PRI 1297 samples, impulse, 4 blades)")
+    _rotation_options(p)
+    _impairment_options(p)
+    _output_options(p)
+    p.set_defaults(func=run)
+
+
+def _rotation_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("rotation (default: the scene's schedule, else the config's "
                              "sim.schedule)")
     g.add_argument("--schedule", metavar="SPEC",
@@ -86,6 +95,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--direction", choices=("cw", "ccw"),
                    help="direction for --rate, seen from above in the floor plan "
                         "(default: ccw)")
+
+
+def _impairment_options(p: argparse.ArgumentParser) -> None:
     n = p.add_argument_group("noise and impairments")
     n.add_argument("--snr-db", metavar="DB",
                    type=_number("give the SNR in dB from -60 to 200, or inf for no noise",
@@ -131,6 +143,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "e.g. rt60_s=0.5, agc_db=3, burst_fraction=0.1, "
                         "speaker_highpass_hz=400, speed_of_sound=346, walker_speed_m_s=1 "
                         "(repeat the option; all keys in docs/simulator.md)")
+
+
+def _output_options(p: argparse.ArgumentParser) -> None:
     o = p.add_argument_group("paths and output")
     o.add_argument("--no-wall-bounces", action="store_true",
                    help="keep only the direct blade echo (plus coupling and static wall "
@@ -140,32 +155,45 @@ def register(sub: argparse._SubParsersAction) -> None:
     o.add_argument("--quiet", action="store_true",
                    help="no progress meter and no warnings on stderr (the JSON summary is "
                         "still printed)")
-    p.set_defaults(func=run)
 
 
 def _run(args: argparse.Namespace) -> int:
     import json
-    from pathlib import Path
 
     from .. import config
-    from ..errors import ConfigError
     from ..io.scene_file import load_scene
-    from ..io.truth import TruthWriter, truth_path
-    from ..io.wav import WavWriter
-    from ..progress import Progress
-    from ..sim.render import Simulator
-    from ..sim.schedule import Schedule
+    from ..io.truth import truth_path
 
     cfg = config.load(args.config)
-    scene = load_scene(args.scene)
+    sim = _simulator(args, cfg, load_scene(args.scene))
+    meta = sim.prepare(args.seconds)
+    out = Path(args.out)
+    wav, truth = _write_recording(args, cfg, sim, meta, out)
+    print(json.dumps(dict(wav=str(out), truth=str(truth_path(out)), seconds=args.seconds,
+                          samples=wav.frames, sample_rate=cfg.audio.sample_rate,
+                          pulses=truth.pulses_written,
+                          clipped_samples=sim.clipped + wav.clipped,
+                          noise_sigma=sim.sigma,
+                          start_offset_samples=sim.offset)))
+    return 0
+
+
+def _simulator(args: argparse.Namespace, cfg: Any, scene: Any) -> Any:
+    """The simulator the options describe (rotation, noise, impairments), checked against
+    each other and the config."""
+    import dataclasses
+
+    from ..errors import ConfigError
+    from ..sim.nuisances import parse_assignments
+    from ..sim.render import Simulator
+    from ..sim.schedule import Schedule, parse
+
     if args.rate is not None and args.schedule is not None:
         raise ConfigError("--rate", args.rate, "cannot be combined with --schedule; give one")
     if args.direction is not None and args.rate is None:
         raise ConfigError("--direction", args.direction, "needs --rate HZ (or use --schedule)")
     schedule = None
     if args.schedule is not None:
-        from ..sim.schedule import parse
-
         schedule = parse(args.schedule, key="--schedule")
     if args.start_offset is not None and args.start_offset >= cfg.waveform.pri_samples:
         raise ConfigError("--start-offset", args.start_offset, "must be below pri_samples "
@@ -180,26 +208,29 @@ def _run(args: argparse.Namespace) -> int:
                           "inf for no noise")
     seed = cfg.sim.seed if args.seed is None else args.seed
     if args.coupling_gain is not None:
-        import dataclasses
-
         scene = dataclasses.replace(scene, coupling_gain=float(args.coupling_gain))
-    from ..sim.nuisances import parse_assignments
-
     nz = parse_assignments(args.nuisance, base=scene.nuisances)
-    sim = Simulator(scene, cfg, schedule, snr_db=snr, seed=seed, nuisances=nz,
-                    start_offset=args.start_offset, drift_ppm=args.drift_ppm,
-                    dropouts=args.dropouts, dropout_samples=args.dropout_samples,
-                    dropout_mode=args.dropout_mode, dc_offset=args.dc_offset, clip=args.clip,
-                    wall_bounces=not args.no_wall_bounces, include_paths=not args.no_paths)
-    meta = sim.prepare(args.seconds)
+    return Simulator(scene, cfg, schedule, snr_db=snr, seed=seed, nuisances=nz,
+                     start_offset=args.start_offset, drift_ppm=args.drift_ppm,
+                     dropouts=args.dropouts, dropout_samples=args.dropout_samples,
+                     dropout_mode=args.dropout_mode, dc_offset=args.dc_offset, clip=args.clip,
+                     wall_bounces=not args.no_wall_bounces, include_paths=not args.no_paths)
 
-    out = Path(args.out)
-    tpath = truth_path(out)
+
+def _write_recording(args: argparse.Namespace, cfg: Any, sim: Any, meta: dict[str, Any],
+                     out: Path) -> tuple[Any, Any]:
+    """The WAV and its truth sidecar, rendered chunk by chunk; both appear only when
+    complete. Returns the closed writers (their counts)."""
+    from ..errors import ConfigError
+    from ..io.truth import TruthWriter, truth_path
+    from ..io.wav import WavWriter
+    from ..progress import Progress
+
     wav = None
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         wav = WavWriter(out, cfg.audio.sample_rate)
-        truth = TruthWriter(tpath, meta)
+        truth = TruthWriter(truth_path(out), meta)
     except OSError as exc:
         if wav is not None:
             wav.abort()
@@ -235,13 +266,7 @@ def _run(args: argparse.Namespace) -> int:
                               f"({exc.strerror or exc}); nothing was kept: free some space "
                               "or give a path on another disk") from None
         raise
-    print(json.dumps(dict(wav=str(out), truth=str(tpath), seconds=args.seconds,
-                          samples=wav.frames, sample_rate=cfg.audio.sample_rate,
-                          pulses=truth.pulses_written,
-                          clipped_samples=sim.clipped + wav.clipped,
-                          noise_sigma=sim.sigma,
-                          start_offset_samples=sim.offset)))
-    return 0
+    return wav, truth
 
 
 def run(args: argparse.Namespace) -> int:
