@@ -63,16 +63,23 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Draw the paper's pictures from a recording or a scene.",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     kinds = p.add_subparsers(dest="kind", metavar="KIND", required=True)
+    for add in (_rd_options, _isar_options, _matrix_options, _track_options,
+                _sim_options):
+        _common(add(kinds))
 
-    def common(q: argparse.ArgumentParser, config: bool = True) -> None:
-        q.add_argument("--out", required=True, metavar="FILE.png|.svg",
-                       help="picture to write; the format follows the suffix")
-        if config:
-            q.add_argument("--config", metavar="CFG",
-                           help="YAML config (default: built-in defaults)")
-        q.add_argument("--title", help="title instead of the default one")
-        q.set_defaults(func=run)
 
+def _common(q: argparse.ArgumentParser, config: bool = True) -> None:
+    """The options every kind of picture has."""
+    q.add_argument("--out", required=True, metavar="FILE.png|.svg",
+                   help="picture to write; the format follows the suffix")
+    if config:
+        q.add_argument("--config", metavar="CFG",
+                       help="YAML config (default: built-in defaults)")
+    q.add_argument("--title", help="title instead of the default one")
+    q.set_defaults(func=run)
+
+
+def _rd_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
     q = kinds.add_parser("rd", help="range-doppler map of a recording")
     q.add_argument("wav", metavar="IN.wav")
     q.add_argument("--reference", metavar="REF", help="mark this reference's gate (default: "
@@ -83,8 +90,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    metavar="M", help="top of the range axis, m (default: one PRI)")
     q.add_argument("--floor-db", type=float,
                    help="colour floor, dB (default: 3 dB over the map's median noise floor)")
-    common(q)
+    return q
 
+
+def _isar_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
     q = kinds.add_parser("isar", help="ISAR image in the fan's rotating frame")
     q.add_argument("wav", metavar="IN.wav")
     src = q.add_mutually_exclusive_group(required=True)
@@ -111,8 +120,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--mode", choices=("envelope", "coherent"), default="envelope",
                    help="sum envelopes (default, robust) or analytic samples (sharper)")
     q.add_argument("--floor-db", type=float, default=-20.0, help="colour floor (default -20)")
-    common(q)
+    return q
 
+
+def _matrix_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
     q = kinds.add_parser("matrix", help="pairwise matching distance of two recordings")
     q.add_argument("wav_a", metavar="A.wav", help="rows (e.g. the reference recording)")
     q.add_argument("wav_b", metavar="B.wav", nargs="?",
@@ -124,15 +135,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--plain", action="store_true",
                    help="show the plain distance (default: row and column means removed, "
                         "which makes the stripes stand out)")
-    common(q)
+    return q
 
+
+def _track_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
     q = kinds.add_parser("track", help="the angular fingerprint track of analyze --track rows")
     q.add_argument("rows", metavar="ROWS.jsonl", help="output of 'bladesonar analyze --track' "
                    "('-' = standard input)")
     q.add_argument("--truth", metavar="TRUTH.json",
                    help="simulator truth: mark the true reversals")
-    common(q)
+    return q
 
+
+def _sim_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
     q = kinds.add_parser("sim", help="simulated multipath ranges, ccw vs cw")
     q.add_argument("--scene", required=True, metavar="SCENE.yaml")
     q.add_argument("--rate", type=_positive(float, "give the fan rate in Hz > 0"),
@@ -140,7 +155,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--pulses", type=_positive(int, "give a number of pulses > 0"),
                    default=175, help="pulses (default 175)")
     q.add_argument("--direct", action="store_true", help="also draw the direct blade echoes")
-    common(q)
+    return q
 
 
 def run(args: argparse.Namespace) -> int:
