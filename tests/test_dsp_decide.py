@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bladesonar.dsp.fingerprint import envelope_features
 from bladesonar.dsp.decide import DecideSettings, decide, motion_statistic
+from bladesonar.dsp.fingerprint import envelope_features
 from synth_pulses import fan_pulse
 
 L = 600

@@ -5,8 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bladesonar.dsp.tracking import Tracker, TrackerSettings, circular_rate_search, \
-    innovation, kalman_step, kalman_update, wrap
+from bladesonar.dsp.tracking import (
+    Tracker,
+    TrackerSettings,
+    circular_rate_search,
+    innovation,
+    kalman_step,
+    kalman_update,
+    wrap,
+)
 
 
 def _matches(rate, n, sigma=0.02, outliers=0.1, seed=0, phase0=0.3):
@@ -24,7 +31,7 @@ def test_constant_rate_track_converges(rate):
     st = TrackerSettings(max_rate=0.45, q_rate=1e-10)
     tr = Tracker(st)
     k, z, q = _matches(rate, 400)
-    states = [tr.update(int(a), float(b), float(c)) for a, b, c in zip(k, z, q)]
+    states = [tr.update(int(a), float(b), float(c)) for a, b, c in zip(k, z, q, strict=True)]
     last = states[-1]
     assert last.locked
     assert abs(last.rate - rate) < 3e-4
@@ -72,12 +79,12 @@ def test_random_matches_do_not_lock():
 def test_reversal_is_reacquired():
     tr = Tracker(TrackerSettings(max_rate=0.3))
     k1, z1, q1 = _matches(0.05, 200, outliers=0.0, seed=3)
-    for a, b, c in zip(k1, z1, q1):
+    for a, b, c in zip(k1, z1, q1, strict=True):
         tr.update(int(a), float(b), float(c))
     end = 0.3 + 0.05 * 199
     k2 = np.arange(200, 320)
     z2 = np.mod(end - 0.05 * (k2 - 199) + 0.02 * np.random.default_rng(4).standard_normal(120), 1)
-    rates = [tr.update(int(a), float(b), 0.9).rate for a, b in zip(k2, z2)]
+    rates = [tr.update(int(a), float(b), 0.9).rate for a, b in zip(k2, z2, strict=True)]
     # within init_pulses + reacquire_after pulses (about 1 s at 34 Hz) the sign flips
     flip = next(i for i, r in enumerate(rates) if r < 0)
     assert flip <= TrackerSettings(max_rate=0.3).init_pulses + 8
@@ -117,7 +124,7 @@ def test_rate_follower_follows_a_ramp_through_the_blind_half_cycle():
     k, z, q, true_rate = _ramp_matches(0.2 * 4 / 34.0, accel, 34 * 5)
     with_follower, without = Tracker(_ramp_settings()), Tracker(_ramp_settings(follower=False))
     err_f, err_c, weights = [], [], []
-    for a, b, c, r in zip(k, z, q, true_rate):
+    for a, b, c, r in zip(k, z, q, true_rate, strict=True):
         with_follower.update(int(a), float(b), float(c))
         without.update(int(a), float(b), float(c))
         if a >= 34 * 2 and with_follower.locked and without.locked:
@@ -139,7 +146,7 @@ def test_steady_rate_keeps_the_constant_rate_track():
     tr = Tracker(_ramp_settings())
     k, z, q, _ = _ramp_matches(0.05, 0.0, 34 * 6)
     weights = []
-    for a, b, c in zip(k, z, q):
+    for a, b, c in zip(k, z, q, strict=True):
         tr.update(int(a), float(b), float(c))
         if a > 34 * 2:
             weights.append(tr.follower_weight)
@@ -153,7 +160,7 @@ def test_a_track_the_good_matches_reject_moves_to_their_line():
     the next check."""
     tr = Tracker(TrackerSettings(max_rate=0.3))
     k, z, q = _matches(0.06, 60, outliers=0.0, seed=7)
-    for a, b, c in zip(k, z, q):
+    for a, b, c in zip(k, z, q, strict=True):
         tr.update(int(a), float(b), float(c))
     wrong, x0 = -0.08, float(tr.x[0])
     tr.relock(wrong, x0, int(k[-1]))                     # a bad lock
@@ -173,6 +180,6 @@ def test_a_track_the_good_matches_reject_moves_to_their_line():
 def test_a_well_accepted_track_is_not_rechecked():
     tr = Tracker(TrackerSettings(max_rate=0.3))
     k, z, q = _matches(-0.11, 200, outliers=0.1, seed=9)
-    for a, b, c in zip(k, z, q):
+    for a, b, c in zip(k, z, q, strict=True):
         tr.update(int(a), float(b), float(c))
         assert not tr.recheck()

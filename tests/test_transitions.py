@@ -147,7 +147,7 @@ def test_rate_follows_a_ramp(scene, reference, schedule, seed):
     slope = np.abs(sch.rate_at(t + 0.05) - sch.rate_at(t - 0.05)) / 0.1
     ramp = slope > 1e-6
     err = np.array([1.0 if r["rate_hz"] is None else abs(r["rate_hz"] - a) / a
-                    for r, a in zip(rows, true)])
+                    for r, a in zip(rows, true, strict=True)])
     assert np.percentile(err[ramp], 95) <= 0.15, np.percentile(err[ramp], 95)
     assert np.median(err[ramp]) <= 0.03, np.median(err[ramp])
     changing = np.array([r["rate_state"] == "changing" for r in rows])

@@ -15,8 +15,8 @@ daemon runs the same stages pulse by pulse through :class:`PulseAnalyzer`.
 from __future__ import annotations
 
 import itertools
-from collections import deque
 import math
+from collections import deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,18 +24,27 @@ from typing import Any
 import numpy as np
 
 from .config import Config
-from .dsp import aliasing
+from .dsp import aliasing, rangescale
 from .dsp import device as dev
-from .dsp import rangescale
 from .dsp import fingerprint as fp
 from .dsp.decide import DecideSettings, Decision, MotionMeter, decide
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
 from .dsp.period import estimate_period
-from .dsp.pulses import BURST, DROPOUT, OK, STATUS_NAMES, WARMUP, AlignedPulses, PulseAligner, \
-    RecordingCheck, align, check_recording, count_dropped, too_few_pulses
+from .dsp.pulses import (
+    BURST,
+    DROPOUT,
+    OK,
+    WARMUP,
+    AlignedPulses,
+    PulseAligner,
+    RecordingCheck,
+    check_recording,
+    count_dropped,
+    too_few_pulses,
+)
 from .dsp.rangedoppler import range_doppler
 from .dsp.tracking import Tracker, TrackerSettings
-from .errors import EstimationError, InputError, ReferenceFileError
+from .errors import InputError, ReferenceFileError
 from .transitions import Event, Transitions, TransitionSettings
 
 #: Length of the short motion window that calls a fan at rest, seconds.
@@ -124,8 +133,9 @@ def check_compatible(ref: Reference, cfg: Config) -> None:
         now = mine.start if key.endswith("start_m") else mine.stop
         if now != stored:
             raise ReferenceFileError(
-                f"the reference was made with {key} = {ref.meta['gate_m'][0 if key.endswith('start_m') else 1]:g} m "
-                f"but the config says {val:g} m; use the same gate or record a new reference")
+                f"the reference was made with {key} = "
+                f"{ref.meta['gate_m'][0 if key.endswith('start_m') else 1]:g} m but the config "
+                f"says {val:g} m; use the same gate or record a new reference")
 
 
 def _gate_for_reference(cfg: Config, full: AlignedPulses, prf: float) -> tuple[Gate, float | None]:
@@ -587,7 +597,7 @@ class PulseAnalyzer:
         out = []
         fs = self.cfg.audio.sample_rate
         every = self.cfg.tracking.decide_every
-        for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v])):
+        for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v], strict=True)):
             if int(k) in self._restart_at:
                 self._restart_track()
             st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
@@ -746,7 +756,7 @@ class PulseAnalyzer:
     def _feed_meters(self) -> None:
         """The motion meters take the pulses since the last decision in one block."""
         if self._pending:
-            f, sf = zip(*self._pending)
+            f, sf = zip(*self._pending, strict=True)
             self.motion.update_block(np.stack(f))
             self.still.update_block(np.stack(sf))
             self._pending = []

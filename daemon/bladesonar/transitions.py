@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 from .dsp.decide import Decision
 
 
-class Direction(str, enum.Enum):
+class Direction(str, enum.Enum):  # noqa: UP042  (StrEnum's str() differs: not a lint fix)
     """Values of the answer's ``direction`` (relative to the reference's own)."""
 
     SAME = "same"
@@ -223,4 +223,4 @@ def _slope(points: deque[tuple[float, float]], *, min_span_s: float) -> float | 
     stt = sum((ti - mt) ** 2 for ti in t)
     if not stt > 0:
         return None
-    return sum((ti - mt) * (p[1] - mr) for ti, p in zip(t, points)) / stt
+    return sum((ti - mt) * (p[1] - mr) for ti, p in zip(t, points, strict=True)) / stt

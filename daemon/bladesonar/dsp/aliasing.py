@@ -22,8 +22,8 @@ finds the fraction, for a warning.
 
 from __future__ import annotations
 
-import math
 import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from fractions import Fraction

@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-
 #: Pulses over which the track and the rate follower are compared (forgetting).
 FOLLOW_MEMORY = 24.0
 
@@ -334,7 +333,7 @@ class Tracker:
 
     def _fit(self) -> tuple[np.ndarray, float, float, float]:
         """Circular regression of the recent matches: (pulses, rate, phase, coherence)."""
-        k, z, w = (np.array(v) for v in zip(*self._recent))
+        k, z, w = (np.array(v) for v in zip(*self._recent, strict=True))
         rate, phase, coh = circular_rate_search(k, z, w, self.settings.max_rate)
         return k, rate, phase, coh
 

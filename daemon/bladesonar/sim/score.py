@@ -21,8 +21,8 @@ claim the wrong direction as right.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -47,7 +47,7 @@ def truth_events(schedule: Schedule, seconds: float, *, moving_hz: float = MOVIN
     out: list[TruthEvent] = []
     known: int | None = None          # +1 / -1 turning, 0 at rest
     rest_from: float | None = None
-    for ti, ri in zip(t, r):
+    for ti, ri in zip(t, r, strict=True):
         if ri == 0.0:
             if rest_from is None:
                 rest_from = float(ti)
