@@ -4,6 +4,7 @@ fit against the table that tells an alias from the true rate (synthetic tables, 
 from __future__ import annotations
 
 from fractions import Fraction
+from typing import Any
 
 import numpy as np
 import pytest
@@ -76,6 +77,7 @@ def test_one_visible_angle_in_five_is_ambiguous_not_a_confident_alias():
         assert v is not None and v.frac.denominator == 5
         assert v.status == "ambiguous" and v.gap < aliasing.MARGIN, v
     # ... and the decision is then unknown, with the reason
+    assert v is not None
     d = decide(rate=-0.2, rate_std=1e-4, locked=True, accepted=1.0, quality=0.5, motion=3.0,
                scene=100.0, ref_cycles_per_pulse=0.05, ref_rate_hz=0.5, ref_direction="ccw",
                alias_gap=v.gap, alias_note="rate ambiguous: test")
@@ -117,7 +119,7 @@ def test_rates_far_from_small_fractions_are_not_checked():
 
 
 def test_a_trusted_rate_keeps_its_answer_and_the_note_becomes_a_warning():
-    common = dict(rate=-0.2, rate_std=1e-3, locked=True, accepted=1.0, quality=0.5,
+    common: dict[str, Any] = dict(rate=-0.2, rate_std=1e-3, locked=True, accepted=1.0, quality=0.5,
                   motion=3.0, scene=100.0, ref_cycles_per_pulse=0.05, ref_rate_hz=0.5,
                   ref_direction="ccw")
     plain = decide(**common)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from bladesonar.dsp.decide import DecideSettings, decide, motion_statistic
@@ -12,7 +14,7 @@ L = 600
 
 
 def _common(**kw):
-    base = dict(rate=0.05, rate_std=0.002, locked=True, accepted=0.95, quality=0.5,
+    base: dict[str, Any] = dict(rate=0.05, rate_std=0.002, locked=True, accepted=0.95, quality=0.5,
                 motion=3.0, scene=100.0, ref_cycles_per_pulse=0.05, ref_rate_hz=0.5,
                 ref_direction="ccw")
     base.update(kw)

@@ -162,6 +162,7 @@ def test_a_track_the_good_matches_reject_moves_to_their_line():
     k, z, q = _matches(0.06, 60, outliers=0.0, seed=7)
     for a, b, c in zip(k, z, q, strict=True):
         tr.update(int(a), float(b), float(c))
+    assert tr.x is not None
     wrong, x0 = -0.08, float(tr.x[0])
     tr.relock(wrong, x0, int(k[-1]))                     # a bad lock
     noise = 0.02 * np.random.default_rng(8).standard_normal(200)

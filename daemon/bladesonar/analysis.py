@@ -43,7 +43,7 @@ from .dsp.pulses import (
     too_few_pulses,
 )
 from .dsp.rangedoppler import range_doppler
-from .dsp.tracking import Tracker, TrackerSettings
+from .dsp.tracking import Tracker, TrackerSettings, TrackState
 from .errors import InputError, ReferenceFileError
 from .transitions import Event, Transitions, TransitionSettings
 
@@ -492,7 +492,7 @@ class PulseAnalyzer:
     tracker: Tracker = field(init=False)
     motion: MotionMeter = field(init=False)
     window: int = field(init=False)
-    _recent: list = field(default_factory=list)  # (accepted, quality) of recent pulses
+    _recent: list[tuple[bool, float]] = field(default_factory=list)  # (accepted, quality)
     _prev: np.ndarray | None = None               # last raw pulse (for the noise level)
     _noise: float = float("nan")                  # running raw half lag-1 difference energy
     dropped: int = 0
@@ -504,15 +504,15 @@ class PulseAnalyzer:
     new_events: list[Event] = field(default_factory=list)
     #: the decision cadence (tracking.decide_every): features waiting for the meters, and
     #: pulses since the last decision
-    _pending: list = field(default_factory=list)
+    _pending: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     _since: int = 0
     decided: Decision | None = None               # the last decision (before the machine)
     bursts: dev.BurstGate = field(default_factory=dev.BurstGate)   # pulses skipped: .bursts
     #: the locked track's unwrapped phase over the last window, (pulse, cycles), and the
     #: track it belongs to (a new lock or a move to another line starts it afresh)
-    _restart_at: set = field(default_factory=set)
-    _unwrapped: deque = field(default_factory=deque)
-    _track_id: tuple = ()
+    _restart_at: set[int] = field(default_factory=set)
+    _unwrapped: deque[tuple[int, float]] = field(default_factory=deque)
+    _track_id: tuple[Any, ...] = ()
     #: range scale c_now / c_ref (dsp/rangescale.py): its estimate, the correlation it
     #: rests on, and the rescaler of features when it is used
     scale: float = 1.0
@@ -553,7 +553,7 @@ class PulseAnalyzer:
             aliasing.fine_table(self.ref.table), self.window, self.ref.cycles_per_pulse,
             min_rate=self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit)
 
-    def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict]:
+    def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict[str, Any]]:
         """Match and track every pulse of a block; measure motion and decide every
         ``tracking.decide_every`` valid pulses (on the same pulses offline as in the
         daemon, whatever the blocks); optional per-pulse rows carrying the last state.
@@ -618,7 +618,7 @@ class PulseAnalyzer:
                 del self._recent[0]
             t_s = float(edge) / fs
             self._since += 1
-            fired = []
+            fired: list[Event] = []
             if self._since >= every or self.state is None:
                 # counted over all valid pulses, so that the daemon (a pulse at a time)
                 # and analyze (blocks) decide on the same pulses
@@ -627,11 +627,11 @@ class PulseAnalyzer:
                 self.new_events.extend(fired)
                 self._since = 0
             if rows:
-                row = {"t_s": round(t_s, 4), "pulse": int(k),
+                row: dict[str, Any] = {"t_s": round(t_s, 4), "pulse": int(k),
                        "phase": round(float(m.phase[i]), 4),
                        "quality": round(float(m.quality[i]), 4),
                        "track_phase": None if not st.locked else round(st.phase, 4),
-                       "track_sd": None if not st.locked else round(
+                       "track_sd": None if not st.locked or self.tracker.P is None else round(
                            math.sqrt(max(float(self.tracker.P[0, 0]), 0.0)), 5),
                        "outlier": st.outlier}
                 row.update(self.state.as_dict())
@@ -669,7 +669,7 @@ class PulseAnalyzer:
                     "at the reference, or the room changed): record a new reference")
         return ""
 
-    def _follow_phase(self, k: int, st) -> None:
+    def _follow_phase(self, k: int, st: TrackState) -> None:
         """Unwrap the track's phase pulse by pulse (the window's mean rate, below)."""
         tr = self.tracker
         tid = (tr.start_k, tr.relocks, tr.rechecks)
@@ -738,6 +738,7 @@ class PulseAnalyzer:
         tr = self.tracker
         if not tr.locked:
             return
+        assert tr.x is not None and tr.P is not None and tr.last_k is not None   # locked
         rate = float(tr.x[1])
         sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
         span = int(tr.last_k - tr.start_k) + 1 if tr.start_k is not None else self.window
@@ -843,7 +844,7 @@ class WarmStart:
         self._held: list[AlignedPulses] = []
         self.held_valid = 0
 
-    def push(self, got: AlignedPulses) -> list[dict]:
+    def push(self, got: AlignedPulses) -> list[dict[str, Any]]:
         """One block of aligned pulses; rows (with ``rows``) of the pulses analysed now."""
         if self.analyzer is not None:
             return self.analyzer.process(got, rows=self.rows) if len(got) else []
@@ -852,14 +853,14 @@ class WarmStart:
             self.held_valid += int(got.valid.sum())
         return self._start() if self.held_valid >= self.warmup else []
 
-    def finish(self, min_pulses: int) -> list[dict]:
+    def finish(self, min_pulses: int) -> list[dict[str, Any]]:
         """At the end of a recording shorter than the warm-up: prime from all it holds,
         if that is at least ``min_pulses``."""
         if self.analyzer is None and self.held_valid >= min_pulses:
             return self._start()
         return []
 
-    def _start(self) -> list[dict]:
+    def _start(self) -> list[dict[str, Any]]:
         first = np.concatenate([h.pulses[h.valid] for h in self._held])[:self.warmup]
         if len(first) > 8:
             # bursts of interference must not prime the static estimate
@@ -867,7 +868,7 @@ class WarmStart:
             first = first[~dev.burst_mask(np.median(res * res, axis=1))]
         self.analyzer = new_analyzer(self.cfg, self.ref, first)
         self.analyzer.uncertain_gaps = self.uncertain_gaps
-        rows: list[dict] = []
+        rows: list[dict[str, Any]] = []
         for h in self._held:
             rows.extend(self.analyzer.process(h, rows=self.rows))
         self._held = []
@@ -895,7 +896,7 @@ def _blocks(x: np.ndarray, size: int) -> Iterator[np.ndarray]:
 
 
 def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
-            track: bool = False) -> tuple[dict[str, Any], list[dict]]:
+            track: bool = False) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """Direction and rate of a recording against a reference.
 
     Parameters
@@ -924,7 +925,7 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
                          sample_rate=cfg.audio.sample_rate)
     streamed = not isinstance(x, np.ndarray)
     warnings: list[str] = []
-    if not streamed:
+    if isinstance(x, np.ndarray):   # not streamed
         # a whole recording is judged before any work (block by block: no full-length
         # temporaries); a stream as it goes
         for b in _blocks(x, block):
@@ -934,11 +935,11 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
     # (bounded memory); the static estimate is primed from the first window of pulses
     aligner = new_aligner(cfg, ref)
     stream = WarmStart(cfg, ref, rows=track, uncertain_gaps=True)
-    rows: list[dict] = []
+    rows: list[dict[str, Any]] = []
     n_pulses = n_valid = 0
     edges: list[np.ndarray] = []
     status: list[np.ndarray] = []
-    source = _blocks(x, block) if not streamed else iter(x)
+    source = _blocks(x, block) if isinstance(x, np.ndarray) else iter(x)
     for xb in itertools.chain(source, [None]):
         if xb is not None:
             xb = np.asarray(xb, dtype=np.float64)

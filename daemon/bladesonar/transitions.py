@@ -34,6 +34,7 @@ import enum
 import math
 from collections import deque
 from dataclasses import dataclass, replace
+from typing import Any
 
 from .dsp.decide import Decision
 
@@ -78,7 +79,7 @@ class Event:
     rotation: str | None
     rate_hz: float | None
 
-    def details(self) -> dict:
+    def details(self) -> dict[str, Any]:
         """The event's payload details (what MQTT subscribers get)."""
         return {"direction": self.direction, "rotation": self.rotation,
                 "rate_hz": None if self.rate_hz is None or not math.isfinite(self.rate_hz)

@@ -28,6 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from fractions import Fraction
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -83,7 +84,7 @@ def near_fractions(rate: float, *, span: int, rate_std: float = 0.0, max_q: int 
     return out
 
 
-def near_fraction(rate: float, **kwargs) -> Fraction | None:
+def near_fraction(rate: float, **kwargs: Any) -> Fraction | None:
     """The first of :func:`near_fractions` (smallest q), or None."""
     got = near_fractions(rate, **kwargs)
     return got[0] if got else None
@@ -132,7 +133,8 @@ def distances(features: np.ndarray, fine: tuple[np.ndarray, np.ndarray]) -> np.n
     keeps it (the product dominates a check otherwise)."""
     f = np.asarray(features, dtype=np.float64)
     t, tsq = fine
-    return (f * f).sum(axis=1)[:, None] - 2.0 * (f @ t.T) + tsq[None, :]
+    d: np.ndarray = (f * f).sum(axis=1)[:, None] - 2.0 * (f @ t.T) + tsq[None, :]
+    return d
 
 
 def line_costs(features: np.ndarray | None, k: np.ndarray, fine: tuple[np.ndarray, np.ndarray],
@@ -160,7 +162,11 @@ def line_costs(features: np.ndarray | None, k: np.ndarray, fine: tuple[np.ndarra
     phase : ndarray, shape (m,)
         That line's phase at the last pulse ``k[-1]``, cycles.
     """
-    d = distances(features, fine) if dist is None else np.asarray(dist, dtype=np.float64)
+    if dist is None:
+        assert features is not None   # the callers give one of the two
+        d = distances(features, fine)
+    else:
+        d = np.asarray(dist, dtype=np.float64)
     kk = np.asarray(k, dtype=np.float64) - float(k[-1])
     M = len(fine[0])
     # row k of the line at rate w is d[k] rotated by s_k = round(w k M): a contiguous window
@@ -290,6 +296,7 @@ class AliasWatch:
             self.verdict, self.note = None, ""
             self._rate = float("nan")
             return
+        assert tr.x is not None and tr.P is not None   # locked
         rate = float(tr.x[1])
         jumped = not abs(rate - self._rate) <= 0.25 / MAX_Q
         # soon after a lock the window since it is short and its verdict young: look again

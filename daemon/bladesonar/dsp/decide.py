@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -161,7 +162,7 @@ class Decision:
     rate_change_hz_s: float | None = None
     """How fast the rotation rate changes (Hz per second, + faster), while turning."""
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         def r(v: float | None, n: int) -> float | None:
             return None if v is None or not math.isfinite(v) else round(float(v), n)
         return dict(direction=self.direction, rotation=self.rotation,

@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import overload
 
 import numpy as np
 
@@ -36,6 +37,10 @@ import numpy as np
 FOLLOW_MEMORY = 24.0
 
 
+@overload
+def wrap(d: float) -> float: ...
+@overload
+def wrap(d: np.ndarray) -> np.ndarray: ...
 def wrap(d: float | np.ndarray) -> float | np.ndarray:
     """Wrap a phase difference (cycles) into [-1/2, 1/2)."""
     return (np.asarray(d) + 0.5) % 1.0 - 0.5 if isinstance(d, np.ndarray) else (
@@ -271,8 +276,9 @@ class Tracker:
     fP: np.ndarray | None = None
     evidence: float = 0.0        # log likelihood ratio follower : track, recent matches
     rechecks: int = 0            # tracks given up because another line fit the matches
-    _recent: deque = field(default_factory=deque)
-    _accepted: deque = field(default_factory=deque)   # (weight, accepted) of _recent
+    _recent: deque[tuple[int, float, float]] = field(default_factory=deque)
+    # (weight, accepted) of _recent
+    _accepted: deque[tuple[float, bool]] = field(default_factory=deque)
 
     def __post_init__(self) -> None:
         self._recent = deque(maxlen=self.settings.init_pulses)
@@ -288,6 +294,7 @@ class Tracker:
         pulse^2; (0, inf) without a lock or a follower."""
         if self.x is None or self.fx is None:
             return 0.0, math.inf
+        assert self.fP is not None   # set with fx
         return float(self.fx[2]), math.sqrt(max(float(self.fP[2, 2]), 0.0))
 
     @property
@@ -309,7 +316,9 @@ class Tracker:
         if self.x is None:
             return float("nan"), float("nan")
         if self.follower_weight > 0.5:
+            assert self.fx is not None and self.fP is not None   # a weight needs a follower
             return float(self.fx[1]), math.sqrt(max(float(self.fP[1, 1]), 0.0))
+        assert self.P is not None   # set with x
         return float(self.x[1]), math.sqrt(max(float(self.P[1, 1]), 0.0))
 
     def _follow_from_track(self) -> None:
@@ -410,9 +419,11 @@ class Tracker:
         if self.x is None:
             self._init()
         else:
+            assert self.P is not None and self.last_k is not None   # set with x
             steps = max(int(k) - int(self.last_k), 1)
             self.x, self.P = kalman_predict(self.x, self.P, st.q_rate, steps)
             if self.fx is not None:
+                assert self.fP is not None   # set with fx
                 self.fx, self.fP = kalman_predict(self.fx, self.fP, st.q_rate, steps,
                                                   st.q_accel)
             self.last_k = int(k)
@@ -428,6 +439,7 @@ class Tracker:
                     self._init()
             else:
                 if self.fx is not None:
+                    assert self.fP is not None   # set with fx
                     fnu, fs = innovation(self.fx, self.fP, z, r)
                     # log N(fnu; 0, fs) - log N(nu; 0, s), with forgetting
                     ll = 0.5 * (math.log(s / fs) + nu * nu / s - fnu * fnu / fs)
@@ -442,6 +454,7 @@ class Tracker:
         if self.x is None:
             return TrackState(int(k), float(z), float(quality), float("nan"), float("nan"),
                               float("nan"), False, outlier, self.coherence)
+        assert self.P is not None   # set with x
         return TrackState(int(k), float(z), float(quality), float(self.x[0]), float(self.x[1]),
                           math.sqrt(max(float(self.P[1, 1]), 0.0)), True, outlier,
                           self.coherence)
