@@ -1,10 +1,12 @@
-"""Shared fixtures. Paths only; each test builds the scene it needs."""
+"""Shared fixtures: paths, and a fresh mosquitto broker (tests/mosquitto.py) for any test."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
+
+from mosquitto import broker  # noqa: F401  (a fixture: any test may take a fresh broker)
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = ROOT.parent / "shared" / "data"

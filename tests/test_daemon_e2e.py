@@ -15,9 +15,8 @@ import time
 from pathlib import Path
 
 import pytest
-import yaml
 
-from loopback import ROOT, SCENE, RoomProcess, bladesonar_cmd, require_alsa, write_config
+from loopback import ROOT, RoomProcess, bladesonar_cmd, require_alsa, write_config
 from mosquitto import Mosquitto, Subscriber, require_mosquitto
 
 pytestmark = [pytest.mark.slow]
@@ -124,6 +123,7 @@ def test_missing_reference_is_a_published_status_then_picked_up_on_sighup(
         def read_until(pred, timeout):
             deadline = time.monotonic() + timeout
             while time.monotonic() < deadline:
+                assert proc.stdout is not None   # stdout=PIPE
                 ln = proc.stdout.readline()
                 if not ln:
                     break
@@ -155,6 +155,7 @@ def test_missing_reference_is_a_published_status_then_picked_up_on_sighup(
         assert st["payload"]["rate_hz"] == pytest.approx(RATE, rel=0.05)
     finally:
         rc = stop_daemon(proc)
+        assert proc.stdout is not None   # stdout=PIPE
         rest = [json.loads(ln) for ln in proc.stdout.read().splitlines() if ln.strip()]
         notify.close()
     assert rc == 0
@@ -178,7 +179,7 @@ def test_start_stop_events_alternate_through_a_stop(tmp_path, sim_reference):
     kinds = [m["payload"]["kind"] for m in msgs if m["topic"].endswith("/event")]
     assert kinds[:2] == ["stopped", "started"], kinds
     assert "reversed" not in kinds, kinds
-    for a, b in zip(kinds, kinds[1:]):
+    for a, b in zip(kinds, kinds[1:], strict=False):
         assert a != b, kinds
 
 

@@ -20,7 +20,6 @@ from bladesonar.io.reference import save_reference
 from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import Schedule
-
 from loopback import ROOT, SCENE, bladesonar_cmd
 
 pytestmark = pytest.mark.slow
@@ -65,6 +64,7 @@ class Daemon:
         self._t.start()
 
     def _read(self) -> None:
+        assert self.proc.stdout is not None   # stdout=PIPE
         for ln in self.proc.stdout:
             if ln.startswith("{"):
                 self.msgs.append(json.loads(ln))
@@ -252,7 +252,8 @@ def test_broker_restarts_a_reload_storm_and_a_bad_reference_through_a_real_broke
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-                raise AssertionError(f"no exit 30 s after SIGTERM: {log.read_text()[-3000:]}")
+                raise AssertionError(
+                    f"no exit 30 s after SIGTERM: {log.read_text()[-3000:]}") from None
             kinds = [json.loads(m.payload)["kind"] for m in sub.messages
                      if m.topic == event_t]
             sub.close()

@@ -9,7 +9,6 @@ from bladesonar import config
 from bladesonar.analysis import analyze, build_reference
 from bladesonar.io.wav import read_wav
 from bladesonar.live import LiveAnalyzer
-
 from conftest import require_shared_sample
 
 pytestmark = pytest.mark.slow   # whole recordings, daemon path against offline
@@ -24,7 +23,8 @@ def sample():
     return cfg, build_reference(ref_x, cfg, "ccw"), probe
 
 
-def feed(live: LiveAnalyzer, x: np.ndarray, pri: int, skip: set[int] = frozenset()):
+def feed(live: LiveAnalyzer, x: np.ndarray, pri: int,
+         skip: set[int] | frozenset[int] = frozenset()):
     est = None
     for n, i in enumerate(range(0, len(x), pri)):
         if n in skip:  # this capture period never reached the processing loop
@@ -53,6 +53,7 @@ def test_lost_periods_advance_the_tracker_clock(sample):
     live = LiveAnalyzer(cfg, ref)
     lost = set(range(150, 160))
     feed(live, probe[:150 * pri], pri)
+    assert live.analyzer is not None
     before = live.analyzer.tracker.outliers
     est = feed(live, probe, pri, skip=set(range(150)) | lost)
     assert live.stats()["dropped_pulses"] >= len(lost)
@@ -101,6 +102,7 @@ def test_daemon_and_analyze_send_the_same_events_on_simulated_use(repo_root):
         live_events += [(e.kind, e.pulse) for e in live.take_events()]
 
     assert live_events == off_events
+    assert est is not None
     for key in ("direction", "rotation", "relative_rate", "rate_hz", "confidence"):
         assert est.fields()[key] == rows[-1][key], key
     score = score_events(truth_events(parse(schedule), 42.0),

@@ -109,7 +109,7 @@ def test_journal_stream_of_another_file_means_stderr(err, tmp_path):
     st = os.stat(other)
     h = setup_logging(env={"JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}, stream=err)
     assert type(h) is logging.StreamHandler
-    assert "%(asctime)s" in h.formatter._fmt
+    assert h.formatter is not None and "%(asctime)s" in str(h.formatter._fmt)
 
 
 @pytest.mark.parametrize("value", ["", "garbage", "1:2:3", "x:y"])
@@ -128,7 +128,8 @@ def test_override_stderr_under_the_journal(err):
     env = journal_env(err) | {"BLADESONAR_LOG": "stderr"}
     h = setup_logging(env=env, stream=err)
     assert type(h) is logging.StreamHandler
-    assert "asctime" not in h.formatter._fmt  # stderr is the journal: no second time stamp
+    assert h.formatter is not None
+    assert "asctime" not in str(h.formatter._fmt)  # stderr is the journal: no second time stamp
     logging.getLogger("bladesonar.test").error("boom")
     err.seek(0)
     assert err.read().strip() == "ERROR bladesonar.test: boom"

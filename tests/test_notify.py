@@ -22,8 +22,7 @@ from pathlib import Path
 import pytest
 
 from bladesonar.service import notify as notify_mod
-from bladesonar.service.notify import (Notifier, NullNotifier, make_notifier,
-                                       watchdog_interval_s)
+from bladesonar.service.notify import Notifier, NullNotifier, make_notifier, watchdog_interval_s
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -162,7 +161,7 @@ def test_watchdog_is_rate_limited_by_watchdog_usec(path_socket, clean_env, use_s
         if n.sent > before:
             sent_at.append(clock.t)
         clock.t += 1 / 34
-    gaps = [b - a for a, b in zip(sent_at, sent_at[1:])]
+    gaps = [b - a for a, b in zip(sent_at, sent_at[1:], strict=False)]
     assert len(sent_at) == 6  # at 0, ~0.5, ~1.0, ..., ~2.5 s
     assert path_socket.pending() == [{"WATCHDOG": "1"}] * 6
     assert all(0.5 <= g < 0.5 + 1 / 34 + 1e-9 for g in gaps)

@@ -24,7 +24,7 @@ from bladesonar import config
 from bladesonar.errors import ConfigError
 from bladesonar.service.messages import STATE_KEYS, Topics, discovery_messages
 from bladesonar.service.publish import MqttPublisher, StdoutPublisher, make_publisher
-from mosquitto import Mosquitto, Subscriber, broker, wait  # noqa: F401 (broker: fixture)
+from mosquitto import Mosquitto, Subscriber, wait
 
 SECRET = "s3cret-Pa55"
 
@@ -163,7 +163,7 @@ def test_state_is_retained_and_availability_goes_online_then_offline(broker, pub
         assert state["rate_hz"] == 0.42 and state["reference"] == "abc123"
         when = dt.datetime.fromisoformat(state["time"])
         assert when.utcoffset() == dt.timedelta(0)
-        assert abs((dt.datetime.now(dt.timezone.utc) - when).total_seconds()) < 5
+        assert abs((dt.datetime.now(dt.UTC) - when).total_seconds()) < 5
         stats = payloads(sub.wait_for(t.stats))[0]
         assert stats["cpu_share"] is None and stats["reconnects"] == 0 and "time" in stats
         # a subscriber arriving later gets the retained state and availability
@@ -224,6 +224,7 @@ def test_last_will_marks_a_killed_daemon_offline(broker, tmp_path):
     with Subscriber(broker.port, [t.availability]) as sub:
         proc = subprocess.Popen([sys.executable, "-c", script, str(broker.port)],
                                 stdout=subprocess.PIPE, text=True)
+        assert proc.stdout is not None   # stdout=PIPE
         try:
             assert proc.stdout.readline().strip() == "connected"
             sub.wait_until(lambda ms: [m for m in ms if m.text == "online"])

@@ -13,12 +13,16 @@ import pytest
 from bladesonar import config
 from bladesonar.analysis import build_reference
 from bladesonar.errors import ReferenceFileError, ReferenceMissingError
-from bladesonar.io.reference import (FILE_FORMAT, load_reference, parse_reference,
-                                     read_reference, save_reference)
+from bladesonar.io.reference import (
+    FILE_FORMAT,
+    load_reference,
+    parse_reference,
+    read_reference,
+    save_reference,
+)
 from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import Schedule
-
 from loopback import SCENE
 
 

@@ -15,12 +15,12 @@ import pytest
 
 from bladesonar import config
 from bladesonar.analysis import build_reference
+from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer
 from bladesonar.service.backends import open_audio
 from bladesonar.service.messages import state_payload
 from bladesonar.service.notify import NullNotifier
 from bladesonar.service.runner import Service
-from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 from loopback import SCENE, write_config
 
@@ -124,7 +124,7 @@ def test_reloads_that_change_nothing_the_analysis_uses_keep_tracking(tmp_path):
         running = svc.analyzer
         for i in range(20):
             svc.request_reload()
-            _wait(lambda: svc.counters.reloads == i + 1)
+            _wait(lambda i=i: svc.counters.reloads == i + 1)
         # only the broker's publish interval changes: the publisher restarts, tracking not
         write_config(cfg_path, tmp_path, **{**sections, "mqtt": {"publish_interval_s": 0.2}})
         svc.request_reload()

@@ -31,8 +31,7 @@ import numpy as np
 
 from ..analysis import REFERENCE_VERSION, Reference
 from ..errors import ReferenceFileError, ReferenceMissingError
-from .files import NotAFile, TooLarge, atomic_writer, human_bytes, one_line, read_capped, \
-    short_repr
+from .files import NotAFile, TooLarge, atomic_writer, human_bytes, one_line, read_capped, short_repr
 
 FORMAT = "bladesonar-reference"
 #: Container version: 2 adds ``file_format`` and ``sha256`` to the metadata. Files without
@@ -236,7 +235,7 @@ def _num(meta: dict, key: str, *, lo: float = -math.inf, hi: float = math.inf,
          lo_open: bool = False, integer: bool = False, optional: bool = False) -> Any:
     if key not in meta and optional:
         return None
-    v = meta.get(key)
+    v: Any = meta.get(key)   # a file's value: checked here
     ok_type = isinstance(v, int) if integer else isinstance(v, (int, float))
     if isinstance(v, bool) or not ok_type or not math.isfinite(v) or v < lo or v > hi \
             or (lo_open and v == lo):

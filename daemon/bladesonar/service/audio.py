@@ -14,13 +14,13 @@ import collections
 import threading
 import time
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
-
 #: Bytes per sample and full scale of each supported ALSA sample format.
-FORMATS = {"S16_LE": (np.dtype("<i2"), 32768.0), "S32_LE": (np.dtype("<i4"), 2147483648.0)}
+FORMATS: dict[str, tuple[np.dtype[np.signedinteger[Any]], float]] = {
+    "S16_LE": (np.dtype("<i2"), 32768.0), "S32_LE": (np.dtype("<i4"), 2147483648.0)}
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,8 @@ from __future__ import annotations
 import logging
 import os
 import sys
-from typing import Mapping, TextIO
+from collections.abc import Mapping
+from typing import TextIO
 
 #: Journal identifier (``journalctl -t bladesonar``; the unit name works too).
 SYSLOG_IDENTIFIER = "bladesonar"
