@@ -337,10 +337,11 @@ def test_daemon_path_resolves_the_alias_too(scene, reference):
     for i in range(0, len(x), pri):
         est = live.push(x[i:i + pri], i) or est
     want = _true_rate_hz(truth) / 0.5
-    est = est.fields()      # the state message's fields (live.Estimate)
-    assert est["direction"] == "reversed" and abs(est["relative_rate"] - want) < 0.03 * 3.4
+    assert est is not None
+    got = est.fields()      # the state message's fields (live.Estimate)
+    assert got["direction"] == "reversed" and abs(got["relative_rate"] - want) < 0.03 * 3.4
     for key in ("direction", "relative_rate", "confidence"):
-        assert est[key] == offline[key], key
+        assert got[key] == offline[key], key
 
 
 

@@ -213,6 +213,7 @@ def configs(**mqtt):
     for topic, m in discovery(**mqtt).items():
         if m.payload is not None:
             g = TOPIC_RE.fullmatch(topic)
+            assert g, topic
             out[(g.group(1), g.group(2))] = json.loads(m.encode())
     return out
 
@@ -349,7 +350,7 @@ def test_discovery_follows_the_prefixes():
 def render(template: str, payload: dict) -> str:
     """What Home Assistant computes from a message: its templates are Jinja2 in a
     sandbox, with ``value_json`` the decoded payload."""
-    jinja2 = pytest.importorskip("jinja2")
+    pytest.importorskip("jinja2")
     from jinja2.sandbox import ImmutableSandboxedEnvironment
 
     env = ImmutableSandboxedEnvironment()

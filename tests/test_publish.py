@@ -472,8 +472,12 @@ def test_tls_verifies_the_broker(tmp_path, publishers, caplog):
 
 def _commands(pub: MqttPublisher, n: int, timeout: float = 5.0) -> list:
     got: list = []
-    wait(lambda: got.extend(pub.take_commands()) or len(got) >= n, timeout,
-         f"{n} commands")
+
+    def arrived() -> bool:
+        got.extend(pub.take_commands())
+        return len(got) >= n
+
+    wait(arrived, timeout, f"{n} commands")
     return got
 
 

@@ -29,7 +29,8 @@ import math
 import numbers
 import re
 import time
-from typing import TYPE_CHECKING, Any, Mapping, NamedTuple
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
     from ..live import Estimate
@@ -177,7 +178,7 @@ def dumps(obj: Any) -> str:
 
 def utc_iso(t: float | None = None) -> str:
     """ISO-8601 time in UTC with its offset, millisecond precision (``t``: Unix seconds)."""
-    when = dt.datetime.fromtimestamp(time.time() if t is None else t, tz=dt.timezone.utc)
+    when = dt.datetime.fromtimestamp(time.time() if t is None else t, tz=dt.UTC)
     return when.isoformat(timespec="milliseconds")
 
 
@@ -193,7 +194,8 @@ def state_payload(estimate: Estimate | Mapping[str, Any] | None, t: float | None
     ``estimate`` is a :class:`live.Estimate` (or a mapping of its fields; None: nothing
     known). ``status`` is ``ok`` unless given (or the mapping says otherwise).
     """
-    fields = dict(estimate.fields() if hasattr(estimate, "fields") else (estimate or {}))
+    fields = dict(estimate or {}) if estimate is None or isinstance(estimate, Mapping) \
+        else dict(estimate.fields())
     out: dict[str, Any] = {k: fields.get(k) for k in STATE_KEYS}
     if out["direction"] is None:
         out["direction"] = "unknown"

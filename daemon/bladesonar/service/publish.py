@@ -29,13 +29,28 @@ import stat
 import sys
 import threading
 import time
+from collections.abc import Mapping
 from typing import IO, TYPE_CHECKING, Any, Protocol
 
 from ..errors import ConfigError
-from .messages import (Command, CommandError, Message, Topics, availability_message, clean,
-                       discovery_messages, event_message, event_payload, parse_command,
-                       state_message, state_payload, stats_message, stats_payload,
-                       status_message, status_payload)
+from .messages import (
+    Command,
+    CommandError,
+    Message,
+    Topics,
+    availability_message,
+    clean,
+    discovery_messages,
+    event_message,
+    event_payload,
+    parse_command,
+    state_message,
+    state_payload,
+    stats_message,
+    stats_payload,
+    status_message,
+    status_payload,
+)
 
 if TYPE_CHECKING:
     from ..live import Estimate
@@ -63,8 +78,8 @@ class Publisher(Protocol):
 
     def start(self) -> None: ...
 
-    def publish_state(self, estimate: Estimate | None, *, status: str = "ok",
-                      detail: str | None = None) -> None: ...
+    def publish_state(self, estimate: Estimate | Mapping[str, Any] | None, *,
+                      status: str = "ok", detail: str | None = None) -> None: ...
 
     def publish_status(self, fields: dict[str, Any]) -> None:
         """The status message (status, reference); the runner calls it on change only."""
@@ -285,7 +300,7 @@ class MqttPublisher:
         try:
             import paho.mqtt.client as mqtt
         except ImportError:
-            mqtt = None
+            mqtt = None  # type: ignore[assignment]  # said just below, with the fix
         if mqtt is None or not hasattr(mqtt, "CallbackAPIVersion"):
             found = "not installed" if mqtt is None else "installed in a 1.x version"
             raise ConfigError("mqtt.host", cfg.mqtt.host,
@@ -341,13 +356,16 @@ class MqttPublisher:
         paho_log = logging.getLogger(f"{__name__}.paho")
         c.on_log = lambda client, userdata, level, buf: paho_log.debug("%s", buf)
         c.suppress_exceptions = True  # a bug in a callback must not end the network thread
-        c.reconnect_delay_set(reconnect_min_delay, reconnect_max_delay)
+        # paho's annotation says int, its code takes seconds as any number
+        c.reconnect_delay_set(reconnect_min_delay, reconnect_max_delay)  # type: ignore[arg-type]
         c.will_set(self.topics.availability, "offline", qos=1, retain=True)
         if m.username:
             c.username_pw_set(m.username, password)
         if m.tls:
             try:
-                c.tls_set(**files)  # cert_reqs=CERT_REQUIRED: the broker is verified
+                # cert_reqs=CERT_REQUIRED: the broker is verified
+                c.tls_set(ca_certs=files.get("ca_certs"), certfile=files.get("certfile"),
+                          keyfile=files.get("keyfile"))
             except (ssl.SSLError, OSError, ValueError) as exc:
                 raise ConfigError("mqtt.tls", True,
                                   f"TLS setup failed ({exc}); check mqtt.ca_certs, "
@@ -375,8 +393,8 @@ class MqttPublisher:
         self.client.connect_async(self.host, self.port, keepalive=self.cfg.mqtt.keepalive_s)
         self.client.loop_start()
 
-    def publish_state(self, estimate: Estimate | None, *, status: str = "ok",
-                      detail: str | None = None) -> None:
+    def publish_state(self, estimate: Estimate | Mapping[str, Any] | None, *,
+                      status: str = "ok", detail: str | None = None) -> None:
         """Retained state; while disconnected only the latest is kept."""
         msg = state_message(self.topics, state_payload(estimate, status=status,
                                                        detail=detail))
@@ -656,8 +674,8 @@ class StdoutPublisher:
             self._started = True
             self._emit(availability_message(self.topics, True))
 
-    def publish_state(self, estimate: Estimate | None, *, status: str = "ok",
-                      detail: str | None = None) -> None:
+    def publish_state(self, estimate: Estimate | Mapping[str, Any] | None, *,
+                      status: str = "ok", detail: str | None = None) -> None:
         self._emit(state_message(self.topics, state_payload(estimate, status=status,
                                                             detail=detail)))
 
