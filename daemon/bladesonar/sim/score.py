@@ -81,6 +81,8 @@ class Score:
     wrong: int = 0
     rate_errors: list[float] = field(default_factory=list)   # relative, while turning
     ramp_errors: list[float] = field(default_factory=list)   # the same, while ramping
+    #: (start, seconds) of unknown stretches in the middle of a turn (score_gaps)
+    gaps: list[tuple[float, float]] = field(default_factory=list)
 
     @property
     def states(self) -> int:
@@ -112,6 +114,12 @@ class Score:
                             "wrong": round(self.wrong / n, 4)},
             "rate_error": pct(self.rate_errors),
             "ramp_rate_error": pct(self.ramp_errors),
+            "unknown_while_turning": {
+                "n": len(self.gaps),
+                "over_0_5_s": sum(1 for _, d in self.gaps if d > 0.5),
+                "max_s": round(max((d for _, d in self.gaps), default=0.0), 2),
+                "longest": [(round(t, 2), round(d, 2)) for t, d in
+                            sorted(self.gaps, key=lambda g: -g[1])[:5]]},
         }
 
 
@@ -164,3 +172,27 @@ def score_state(sc: Score, t_s: float, rate_hz: float, direction: str,
         sc.rate_errors.append(e)
         if ramping:
             sc.ramp_errors.append(e)
+
+
+def score_gaps(sc: Score, times: Sequence[float], directions: Sequence[str],
+               true_rates: Sequence[float] | np.ndarray, *,
+               moving_hz: float = MOVING_HZ) -> None:
+    """Record in ``sc.gaps`` the stretches of ``unknown`` states in the middle of a turn:
+    the fan turns at ``moving_hz`` or more throughout, and the states just before and
+    just after give the same direction (a ramp through a rate near p/q blade period per
+    pulse, a weak stretch of matches). A stretch lasts from its first unknown state to the
+    next known one."""
+    n = len(directions)
+    i = 0
+    while i < n:
+        if directions[i] != "unknown" or i == 0:
+            i += 1
+            continue
+        j = i
+        while j < n and directions[j] == "unknown":
+            j += 1
+        if j < n and directions[i - 1] == directions[j] \
+                and directions[j] in ("same", "reversed") \
+                and min(abs(float(r)) for r in true_rates[i - 1:j + 1]) >= moving_hz:
+            sc.gaps.append((float(times[i]), float(times[j]) - float(times[i])))
+        i = j
