@@ -18,7 +18,14 @@ from bladesonar.dsp.decide import Decision
 from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import parse
-from bladesonar.sim.score import TruthEvent, score_events, score_state, truth_events
+from bladesonar.sim.score import (
+    Score,
+    TruthEvent,
+    score_events,
+    score_gaps,
+    score_state,
+    truth_events,
+)
 from bladesonar.transitions import Transitions, TransitionSettings
 
 pytestmark = pytest.mark.slow   # simulated scenes with transitions: outside the fast tier
@@ -64,9 +71,10 @@ SCENES = {
     "slow-reversal": ("ccw:0.45:6,cw:0.55:16~15", 22, ["reversed"]),
     "speed-steps": ("ccw:0.25:8,ccw:0.5:10~3,ccw:0.3:10~2", 28, []),
 }
-# the issue's targets are 2 s, 3 s and 2 s; measured here a spin-down's stop comes 3.1 s
-# after rest (bench_day: median 2.1 s, max 3.3 s), so 'stopped' is bounded at 3.5 s
-LATENCY = {"started": 2.0, "stopped": 3.5, "reversed": 3.5}
+# the issue's targets (measured on these scenes, seeds 3-5: started 0.15-0.24 s, stopped
+# 1.9-2.2 s, reversed within 0.05 s of the truth; an instant stop of a blade resting out
+# of view once took 3.9 s, seed 4, see docs/dynamics.md)
+LATENCY = {"started": 2.0, "stopped": 3.0, "reversed": 2.0}
 
 
 @pytest.mark.parametrize("name", list(SCENES))
@@ -138,7 +146,7 @@ def test_noise_is_not_a_fan_at_rest(scene, reference):
                                             ("ccw:0.3:8,ccw:0.6:12~4", 8)])
 def test_rate_follows_a_ramp(scene, reference, schedule, seed):
     """Ramps of 0.05-0.075 Hz/s at 10 dB: the published rate against the simulator's
-    (issue target: 95th percentile error at most 10 %; measured 6-13 % on these),
+    (issue target: 95th percentile error at most 10 %; measured 4-7 % on these),
     'changing' over much of the ramp and 'settled' once it holds."""
     _, rows, _ = _run(scene, reference, schedule, 20, seed=seed)
     sch = parse(schedule)
@@ -148,7 +156,7 @@ def test_rate_follows_a_ramp(scene, reference, schedule, seed):
     ramp = slope > 1e-6
     err = np.array([1.0 if r["rate_hz"] is None else abs(r["rate_hz"] - a) / a
                     for r, a in zip(rows, true, strict=True)])
-    assert np.percentile(err[ramp], 95) <= 0.15, np.percentile(err[ramp], 95)
+    assert np.percentile(err[ramp], 95) <= 0.10, np.percentile(err[ramp], 95)
     assert np.median(err[ramp]) <= 0.03, np.median(err[ramp])
     changing = np.array([r["rate_state"] == "changing" for r in rows])
     assert changing[ramp].mean() >= 0.25
@@ -303,3 +311,63 @@ def test_score_matches_in_order_and_counts_false_and_missed():
     assert [(e.kind, lat) for e, lat in sc.hits] == [("stopped", 2.0)]
     assert [e.kind for e in sc.missed] == ["started"]
     assert sc.false == [("reversed", 9.0), ("started", 30.0)]
+
+
+def test_unknown_stretches_in_the_middle_of_a_turn_are_counted():
+    """score_gaps counts an unknown stretch only between two answers of the same
+    direction while the fan turns at 0.15 Hz or more throughout; its length runs from
+    the first unknown state to the next known one."""
+    t = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0]
+    d = ["same", "unknown", "unknown", "same", "unknown", "reversed",
+         "unknown", "reversed", "unknown", "unknown", "stopped"]
+    rate = [0.3, 0.3, 0.3, 0.3, 0.1, -0.3, -0.3, -0.3, -0.2, -0.1, 0.0]
+    sc = Score(truth=[])
+    score_gaps(sc, t, d, rate)
+    assert [(a, round(b, 6)) for a, b in sc.gaps] == [(0.1, 0.2), (0.6, 0.1)]
+    g = sc.summary()["unknown_while_turning"]
+    assert g["n"] == 2 and g["over_0_5_s"] == 0 and g["max_s"] == 0.2
+    slow = list(rate)
+    slow[2] = 0.14                                   # a slow moment: not a turn's middle
+    sc = Score(truth=[])
+    score_gaps(sc, t, d, slow)
+    assert [a for a, _ in sc.gaps] == [0.6]
+
+
+@pytest.mark.parametrize("schedule, seed", [("ccw:0.45:10,ccw:0.25:10~2.5", 9),
+                                            ("cw:0.3:10,cw:0.5:10~2.5", 10)])
+def test_published_rate_leaves_a_steady_speed_with_the_ramp(scene, reference, schedule,
+                                                            seed):
+    """A ramp of 0.08 Hz/s from a steady speed: the window's mean and the track hold the
+    old speed for a second or more, the follower has the new one within a few matches;
+    the published rate is the follower's as soon as the two part (measured 95th
+    percentile 7.6-9.5 %; before, the mean's 0.45 Hz was published for 0.7 s into a
+    spin-down)."""
+    _, rows, _ = _run(scene, reference, schedule, 20, seed=seed)
+    sch = parse(schedule)
+    t = np.array([r["t_s"] for r in rows])
+    true = np.abs(sch.rate_at(t - 0.03))
+    ramp = (t > 10.0) & (t < 12.5)
+    err = np.array([1.0 if r["rate_hz"] is None else abs(r["rate_hz"] - a) / a
+                    for r, a in zip(rows, true, strict=True)])
+    assert np.percentile(err[ramp], 95) <= 0.12, np.percentile(err[ramp], 95)
+    settled = (t > 3.0) & (t < 10.0)
+    assert np.percentile(err[settled], 95) <= 0.01, np.percentile(err[settled], 95)
+
+
+@pytest.mark.parametrize("schedule, seed", [("ccw:0.30:10,ccw:0.55:20~8", 3),
+                                            ("ccw:0.30:10,ccw:0.55:20~8", 4),
+                                            ("ccw:0.55:10,ccw:0.25:20~10", 4)])
+def test_a_ramp_through_p_q_keeps_its_answer(scene, reference, schedule, seed):
+    """A slow ramp passes rates near 1/22, 1/18 and 1/16 blade period per pulse, where
+    the pulses see few angles and the rate's mirror fits the table about as well; a
+    track that has followed the ramp is no alias (the alias of a changing rate fits no
+    match), so the answer stays known (issue target: no unknown over 0.5 s; before,
+    1.2 s of 'rate ambiguous' at each)."""
+    _, rows, _ = _run(scene, reference, schedule, 30, seed=seed, snr_db=11.0)
+    sch = parse(schedule)
+    t = [r["t_s"] for r in rows]
+    sc = Score(truth=[])
+    score_gaps(sc, t, [r["direction"] for r in rows], sch.rate_at(np.array(t) - 0.03))
+    assert not any(d > 0.5 for _, d in sc.gaps), sc.gaps
+    late = [r["direction"] for r in rows if r["t_s"] > 8.0]
+    assert set(late) <= {"same", "unknown"} and late.count("same") >= 0.97 * len(late)

@@ -14,11 +14,12 @@ daemon runs the same stages pulse by pulse through :class:`PulseAnalyzer`.
 
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 from collections import deque
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -339,6 +340,18 @@ RECHECK_EVERY = 8
 #: window's mean rate, for the window to read as steady (a wobble) rather than a ramp.
 TREND_SHARE = 0.02
 
+#: Largest difference between a settled fan's steady rate (the window's mean, or the
+#: track's) and the latest rate (the follower's), as a share, for the steady one to be
+#: reported: the follower's own wander on a steady fan is about 1.4 % at the 95th
+#: percentile, the change in the first half second of a 0.1 Hz/s ramp from 0.3 Hz 15 %.
+SETTLED_AGREE = 0.03
+
+#: Pulses between the copies of the static estimate kept for a fan that comes to rest,
+#: and how many are kept (12 s: a spin-down's last seconds above three times the floor
+#: lie up to about 8 s before its stop is confirmed) (PulseAnalyzer._hold_static).
+SNAPSHOT_EVERY = 17
+SNAPSHOTS = 24
+
 #: Largest range scale (c now / c at the reference) followed by rescaling: beyond it
 #: (about 17 degrees C) the reference no longer fits and the answer is unknown.
 SCALE_LIMIT = 0.03
@@ -412,6 +425,11 @@ class StaticRemover:
         #: device's gain wander: an AGC; elsewhere it would only add the fan's share of
         #: the projection as jitter on the strong static echoes)
         self.normalise = False
+        #: hold the estimate (a fan at rest: see PulseAnalyzer._hold_static)
+        self.frozen = False
+        #: (pulse, estimate after it) every SNAPSHOT_EVERY pulses, the last SNAPSHOTS
+        self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=SNAPSHOTS)
+        self._next_copy = -(10 ** 18)
         self.gain_lo = math.inf
         self.gain_hi = 0.0
 
@@ -445,12 +463,15 @@ class StaticRemover:
             mean += a * res[i]
         return res
 
-    def skip_bursts(self, pulses: np.ndarray, gate: dev.BurstGate
+    def skip_bursts(self, pulses: np.ndarray, gate: dev.BurstGate,
+                    index: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Like calling the remover, but each pulse is first scaled to the static
         estimate's gain (least squares), and a pulse the burst gate flags (its residual's
         median square far above the recent pulses') is not averaged into the static
-        estimate. Returns (scaled pulses, residuals, burst mask)."""
+        estimate. Returns (scaled pulses, residuals, burst mask). With the pulses'
+        numbers ``index``, a copy of the estimate is kept every SNAPSHOT_EVERY pulses
+        (``history``: the same pulses whatever the blocks)."""
         x = np.array(pulses, dtype=np.float64)
         a, mean = self.alpha, self.mean
         res = np.empty_like(x)
@@ -473,8 +494,18 @@ class StaticRemover:
                 continue
             if g > 0:
                 self._note_gain(g)
-            mean += a * res[i]
+            if not self.frozen:
+                mean += a * res[i]
+            if index is not None and int(index[i]) >= self._next_copy:
+                self.history.append((int(index[i]), mean.copy()))
+                self._next_copy = int(index[i]) + SNAPSHOT_EVERY
         return x, res, burst
+
+
+def _rows_of(block: AlignedPulses, keep: np.ndarray) -> AlignedPulses:
+    """The pulses of ``block`` where ``keep`` is true."""
+    return AlignedPulses(block.pulses[keep], block.edges[keep], block.index[keep],
+                         block.status[keep])
 
 
 @dataclass
@@ -511,6 +542,7 @@ class PulseAnalyzer:
     #: the locked track's unwrapped phase over the last window, (pulse, cycles), and the
     #: track it belongs to (a new lock or a move to another line starts it afresh)
     _restart_at: set[int] = field(default_factory=set)
+    _carry_restart: set[int] = field(default_factory=set)
     _unwrapped: deque[tuple[int, float]] = field(default_factory=deque)
     _track_id: tuple[Any, ...] = ()
     #: range scale c_now / c_ref (dsp/rangescale.py): its estimate, the correlation it
@@ -524,6 +556,9 @@ class PulseAnalyzer:
     #: carried across one that a jump of unknown length would spoil (_restart_track)
     uncertain_gaps: bool = False
     restarts: int = 0
+    #: the last pulse at which the fan was seen turning at three times the floor or more
+    #: (_hold_static)
+    _turning_k: int | None = None
 
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
@@ -549,52 +584,26 @@ class PulseAnalyzer:
                                  max_lag=max(3, min(lags, short // 2)))
         self.slow = StaticRemover(self.static.alpha / SLOW_FACTOR, self.static.mean)
         self._table_norms = (self.ref.table ** 2).sum(axis=1)
+        prf = self.cfg.prf_hz
         self.aliases = aliasing.AliasWatch(
             aliasing.fine_table(self.ref.table), self.window, self.ref.cycles_per_pulse,
-            min_rate=self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit)
+            min_rate=self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit,
+            ramp_accel=self._decide_settings.changing_hz_s * self.cfg.scene.blades / prf ** 2)
 
     def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict[str, Any]]:
         """Match and track every pulse of a block; measure motion and decide every
         ``tracking.decide_every`` valid pulses (on the same pulses offline as in the
         daemon, whatever the blocks); optional per-pulse rows carrying the last state.
         Events confirmed in the block are added to ``new_events``."""
-        a = self.cfg.analysis
-        v = block.valid
-        self.seen += len(block)
-        self.dropped += int(np.count_nonzero((block.status != OK) & (block.status != WARMUP)))
-        if not v.any():
+        # a block's static removal runs ahead of its pulses' decisions; a decision that
+        # changes the static estimate (_hold_static) rewinds to here, so that the rest of
+        # the block is removed with the new estimate, as the daemon's next pulse is
+        saved = self._streams() if int(np.count_nonzero(block.valid)) > 1 else None
+        prep = self._prepare(block)
+        if prep is None:
             return []
-        if self.uncertain_gaps and (block.status == DROPOUT).any():
-            # pulses after a drop-out: the first valid one starts a new track
-            after = np.zeros(len(block), bool)
-            for j in np.nonzero(block.status == DROPOUT)[0]:
-                nxt = np.nonzero(v[j + 1:])[0]
-                if len(nxt):
-                    after[j + 1 + nxt[0]] = True
-            self._restart_at = set(block.index[after].tolist())
-        else:
-            self._restart_at = set()
-        xv, res, burst = self.static.skip_bursts(block.pulses[v], self.bursts)
-        if burst.any():
-            # swamped by interference: skipped (and counted by the gate), like a drop-out
-            v = v.copy()
-            v[np.nonzero(v)[0][burst]] = False
-            xv, res = xv[~burst], res[~burst]
-            if not v.any():
-                return []
-        feats = fp.envelope_features(res, np.zeros(res.shape[1]), kind=a.features,
-                                     smooth=a.envelope_smooth)
-        self._scale_due -= len(xv)
-        if self._scale_due <= 0:
-            self.check_scale(self.static.mean)
-        if self._rescale is not None:
-            feats = self._rescale(feats)
-        m = fp.match(feats, self.ref.table, self._table_norms)
-        dist = aliasing.distances(feats, self.aliases.fine)
-        still_feats = fp.envelope_features(self.slow(xv), np.zeros(res.shape[1]),
-                                           kind="envelope", smooth=a.envelope_smooth,
-                                           band=STILL_BAND)
-        out = []
+        v, xv, feats, m, dist, still_feats = prep
+        out: list[dict[str, Any]] = []
         fs = self.cfg.audio.sample_rate
         every = self.cfg.tracking.decide_every
         for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v], strict=True)):
@@ -619,13 +628,16 @@ class PulseAnalyzer:
             t_s = float(edge) / fs
             self._since += 1
             fired: list[Event] = []
+            changed = False
             if self._since >= every or self.state is None:
                 # counted over all valid pulses, so that the daemon (a pulse at a time)
                 # and analyze (blocks) decide on the same pulses
                 d = self.decided = self.decision()
-                self.state, fired = self.transitions.step(t_s, int(k), d, self._since)
+                state, fired = self.transitions.step(t_s, int(k), d, self._since)
+                self.state = self._reported_rate(state)
                 self.new_events.extend(fired)
                 self._since = 0
+                changed = self._hold_static(int(k), d)
             if rows:
                 row: dict[str, Any] = {"t_s": round(t_s, 4), "pulse": int(k),
                        "phase": round(float(m.phase[i]), 4),
@@ -637,7 +649,80 @@ class PulseAnalyzer:
                 row.update(self.state.as_dict())
                 row["event"] = fired[-1].kind if fired else None
                 out.append(row)
+            if changed and saved is not None:
+                after = block.index > int(k)
+                if np.any(after & block.valid):
+                    out.extend(self._redo_rest(block, int(k), saved, rows))
+                    return out
         return out
+
+    def _prepare(self, block: AlignedPulses) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                      fp.Matches, np.ndarray, np.ndarray] | None:
+        """What a block needs before its pulses are tracked: the counts, the restart
+        marks after drop-outs, static removal (bursts skipped), envelope features, the
+        matches and the distances for the alias check. None without a usable pulse."""
+        a = self.cfg.analysis
+        v = block.valid
+        self.seen += len(block)
+        self.dropped += int(np.count_nonzero((block.status != OK) & (block.status != WARMUP)))
+        if not v.any():
+            return None
+        if self.uncertain_gaps and (block.status == DROPOUT).any():
+            # pulses after a drop-out: the first valid one starts a new track
+            after = np.zeros(len(block), bool)
+            for j in np.nonzero(block.status == DROPOUT)[0]:
+                nxt = np.nonzero(v[j + 1:])[0]
+                if len(nxt):
+                    after[j + 1 + nxt[0]] = True
+            self._restart_at = set(block.index[after].tolist())
+        else:
+            self._restart_at = set()
+        self._restart_at |= self._carry_restart
+        self._carry_restart = set()
+        xv, res, burst = self.static.skip_bursts(block.pulses[v], self.bursts, block.index[v])
+        if burst.any():
+            # swamped by interference: skipped (and counted by the gate), like a drop-out
+            v = v.copy()
+            v[np.nonzero(v)[0][burst]] = False
+            xv, res = xv[~burst], res[~burst]
+            if not v.any():
+                return None
+        feats = fp.envelope_features(res, np.zeros(res.shape[1]), kind=a.features,
+                                     smooth=a.envelope_smooth)
+        self._scale_due -= len(xv)
+        if self._scale_due <= 0:
+            self.check_scale(self.static.mean)
+        if self._rescale is not None:
+            feats = self._rescale(feats)
+        m = fp.match(feats, self.ref.table, self._table_norms)
+        dist = aliasing.distances(feats, self.aliases.fine)
+        still_feats = fp.envelope_features(self.slow(xv), np.zeros(res.shape[1]),
+                                           kind="envelope", smooth=a.envelope_smooth,
+                                           band=STILL_BAND)
+        return v, xv, feats, m, dist, still_feats
+
+    def _streams(self) -> tuple[Any, ...]:
+        """The state the static removal of a block moves (for _redo_rest)."""
+        return (copy.deepcopy(self.static), copy.deepcopy(self.slow),
+                copy.deepcopy(self.bursts), self._scale_due, self.scale, self.scale_corr,
+                self._rescale, self.seen, self.dropped)
+
+    def _redo_rest(self, block: AlignedPulses, k: int, saved: tuple[Any, ...], rows: bool
+                   ) -> list[dict[str, Any]]:
+        """The static estimate changed at pulse ``k`` of ``block``: the streams go back
+        to the block's start and run again over its pulses up to ``k`` (the same
+        results), the change is made again, and the rest of the block is processed with
+        it."""
+        changed_static = (self.static.mean.copy(), self.static.frozen)
+        restart = self._restart_at
+        (self.static, self.slow, self.bursts, self._scale_due, self.scale, self.scale_corr,
+         self._rescale, self.seen, self.dropped) = saved
+        head = block.index <= k
+        self._prepare(_rows_of(block, head))
+        self.static.mean[:], self.static.frozen = changed_static
+        # a drop-out at the head's end marks the rest's first pulse
+        self._carry_restart = {j for j in restart if j > k}
+        return self.process(_rows_of(block, ~head), rows=rows)
 
     def _restart_track(self) -> None:
         """After a drop-out of unknown length: the track goes on (most drop-outs lose less
@@ -672,7 +757,7 @@ class PulseAnalyzer:
     def _follow_phase(self, k: int, st: TrackState) -> None:
         """Unwrap the track's phase pulse by pulse (the window's mean rate, below)."""
         tr = self.tracker
-        tid = (tr.start_k, tr.relocks, tr.rechecks)
+        tid = tr.identity
         if not st.locked or tid != self._track_id:
             self._unwrapped.clear()
             self._track_id = tid
@@ -718,6 +803,91 @@ class PulseAnalyzer:
         return (sum(1.0 for a, _ in self._recent if a) / n,
                 sum(q for _, q in self._recent) / n)
 
+    def _seen_still(self) -> bool:
+        """Whether the matches show the blade standing still in view: a track older than
+        its lock's matches, slower than half the floor by two standard deviations, that
+        accepted nearly all of the recent informative matches (with the static estimate
+        held while the fan rests, a blade at rest in view matches its angle clearly). A
+        fan reversing slowly through zero in view moves its matches, and the short meter
+        sees it too (1.5 s of 0.02 Hz read 7.7 against its 1.15 for rest)."""
+        tr = self.tracker
+        st = tr.settings
+        if tr.x is None or tr.P is None or tr.start_k is None or tr.last_k is None \
+                or tr.last_k - tr.start_k < 2 * st.init_pulses:
+            return False
+        floor = 0.5 * self._decide_settings.rate_floor_hz / float(self.ref.meta["rate_hz"]) \
+            * self.ref.cycles_per_pulse
+        sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
+        if abs(float(tr.x[1])) + 2.0 * sd >= floor:
+            return False
+        recent = self._recent[-st.init_pulses:]
+        w = [q * q for _, q in recent]
+        if not recent or max(q for _, q in recent) < st.min_info or not sum(w) > 0:
+            return False
+        return sum(wi for wi, (acc, _) in zip(w, recent, strict=True) if acc) >= 0.8 * sum(w)
+
+    def _hold_static(self, k: int, d: Decision) -> bool:
+        """While the fan rests, the static estimate is the room as it was while the fan
+        turned (its echo averaged over angles), held. Left to adapt it takes in the echo
+        of the blade at rest, and that adapting itself reads as motion: a line of matches
+        at 0.12 Hz from a fan at rest for 0.8 s restarted a stop's confirmation; and when
+        the fan starts again the rest echo stays in every residual as a ghost at the
+        rest angle for seconds, the matches standing still while the fan speeds up
+        (starts came up to 2.7 s after the fan passed 0.15 Hz; held, under 1.3 s). Held,
+        a resting blade leaves the residual a turning one leaves at that angle, and the
+        track follows it from rest when the fan starts.
+
+        Held from the first 'stopped' decision after the fan was seen turning at three
+        times the floor (the copy of the estimate from then) until it is seen turning at
+        that rate again (a weak answer in the old direction from a spurious line near
+        rest does not count). True when the estimate changed."""
+        st = self.state
+        turning = st is not None and st.direction in ("same", "reversed") and \
+            (st.rate_hz or 0.0) >= 3.0 * self.cfg.tracking.rate_floor_hz
+        if turning:
+            self._turning_k = k
+        if not self.static.frozen:
+            if d.direction == "stopped" and self._turning_k is not None:
+                held = [m for j, m in self.static.history if j <= self._turning_k]
+                if held:
+                    self.static.mean[:] = held[-1]
+                    self.static.frozen = True
+                    return True
+        elif turning:
+            self.static.frozen = False
+            return True
+        return False
+
+    def _reported_rate(self, d: Decision) -> Decision:
+        """The rate a turning state reports. The latest rate is the follower's (it
+        follows a change of speed as soon as the matches show it); a settled fan reads
+        its window's mean instead (a wobble of a few per cent averages out), or the
+        quieter track's rate before the window is full, but only while that agrees with
+        the latest rate within SETTLED_AGREE: at the onset of a ramp both still hold the
+        old speed for a second or more while the follower already has the new one (on
+        simulated days the onsets of ramps were half of the ramp answers more than 10 %
+        off). Only what is published changes: the state machine decides on the
+        decision's own rate (the follower is the livelier of the two, and after a
+        spurious lock near rest its rate alone would clear the rate needed for a new
+        direction)."""
+        if d.direction not in ("same", "reversed") or d.relative_rate is None:
+            return d
+        tr = self.tracker
+        if tr.x is None:
+            return d
+        now, _ = tr.rate_now
+        rate = now
+        if d.rate_state == "settled":
+            mean = self.window_rate()
+            steady = mean if mean is not None else float(tr.x[1])
+            if steady * now > 0 and abs(steady - now) <= SETTLED_AGREE * abs(steady):
+                rate = steady
+        if not (math.isfinite(rate) and rate * d.relative_rate > 0):
+            return d
+        rel = rate / self.ref.cycles_per_pulse
+        hz = abs(rel) * float(self.ref.meta["rate_hz"])
+        return replace(d, relative_rate=rel, rate_hz=hz, rpm=hz * 60.0)
+
     def take_events(self) -> list[Event]:
         """Events confirmed since the last call (the daemon publishes them)."""
         got, self.new_events = self.new_events, []
@@ -733,8 +903,9 @@ class PulseAnalyzer:
 
     def _recheck_track(self) -> None:
         """A track the good matches mostly reject is given up for a line that fits them
-        (:meth:`Tracker.recheck`), except near p/q cycles per pulse, where the alias check
-        chooses among lines that fit alike."""
+        (:meth:`Tracker.recheck`); near p/q cycles per pulse only for a line that is not
+        one of its aliases, among which the alias check chooses (a spin-up that locked on
+        a spurious line near 3/14 stayed `unknown` for 1.8 s)."""
         tr = self.tracker
         if not tr.locked:
             return
@@ -742,9 +913,15 @@ class PulseAnalyzer:
         rate = float(tr.x[1])
         sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
         span = int(tr.last_k - tr.start_k) + 1 if tr.start_k is not None else self.window
-        if aliasing.near_fractions(rate, span=span, rate_std=sd, accel=self._clear_accel()):
-            return
-        if tr.recheck():
+        fracs = aliasing.near_fractions(rate, span=span, rate_std=sd,
+                                        accel=self._clear_accel())
+        aliases = None
+        if fracs:
+            if fracs[0] == 0:
+                return       # a track standing still: every p/q is its alias
+            aliases = aliasing.alias_rates(rate, fracs, max_rate=tr.settings.max_rate,
+                                           min_rate=0.0)
+        if tr.recheck(aliases):
             # the old line's rejections say nothing about the new one
             self._recent.clear()
 
@@ -786,6 +963,7 @@ class PulseAnalyzer:
         still, _ = self.still.statistic()
         args = dict(still=still, accel=accel * prf,
                     changing_odds=self.tracker.follower_weight,
+                    at_rest=self.static.frozen,
                     rate=rate, rate_std=sd, locked=locked,
                     accepted=accepted,
                     quality=float(qual.mean()) if len(qual) else 0.0,
@@ -805,6 +983,10 @@ class PulseAnalyzer:
             # tracked rate is the latest and lags it); a changing one is the follower's
             args["rate"] = mean
             d = decide(**args)
+        if d.direction == "stopped" and self._seen_still():
+            d = replace(d, seen_still=True)
+        if self.static.frozen:
+            d = replace(d, at_rest=True)
         misfit = self.scale_misfit
         if misfit and d.direction in ("same", "reversed"):
             return Decision("unknown", None, d.relative_rate, d.rate_hz, d.rpm,

@@ -66,6 +66,9 @@ class TransitionSettings:
     meter_lag_s: float = 0.5
     #: answers over this span (s) give the slowing fan's rate of change
     slope_span_s: float = 2.0
+    #: a fan seen at rest (Decision.at_rest) needs this many times change_factor times
+    #: the floor for a new direction (0.15 Hz)
+    rest_factor: float = 1.5
 
 
 @dataclass(frozen=True)
@@ -124,9 +127,12 @@ class Transitions:
         every few pulses); (the state to publish, events confirmed now) out."""
         cand = _kind(d.direction)
         slow = self.settings.change_factor * self.settings.rate_floor_hz
+        if d.at_rest:
+            slow *= self.settings.rest_factor
         if cand in ("+", "-") and cand != self.known and not (d.rate_hz or 0.0) >= slow:
             # a new direction (a start, a reversal) is taken only from a rate clearly above
-            # the floor: the end of a spin-down leaves slow, shaky tracks of either sign
+            # the floor: the end of a spin-down leaves slow, shaky tracks of either sign,
+            # and a fan seen at rest spurious lines up to about 0.13 Hz for a second
             d = replace(d, direction=Direction.UNKNOWN.value, rotation=None,
                         reason=f"turning slowly ({d.rate_hz or 0.0:.3f} Hz < {slow:g} Hz "
                                f"needed for a new direction): {d.reason}")
@@ -149,7 +155,8 @@ class Transitions:
             self._support.popleft()
         self._cand_n = sum(n for _, n in self._support)
         if cand != self.known:
-            guard = self._reversal_guard(t_s) if cand == "stopped" else None
+            guard = self._reversal_guard(t_s) if cand == "stopped" and not d.seen_still \
+                else None
             if self._cand_n < need or guard is not None:
                 what = "a stop" if cand == "stopped" else f"turning {d.direction}"
                 why = (f"confirming {what} ({min(self._cand_n, need)} of {need} pulses)"

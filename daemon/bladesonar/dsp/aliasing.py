@@ -34,13 +34,15 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from .fingerprint import table_lookup
-from .tracking import Tracker
+from .tracking import Tracker, TrackId
 
 #: Largest denominator q checked (simulated paper-room probes locked on aliases up to
 #: q = 24, the largest tried; 17 angles, 0.5 Hz, were mostly fine without the check).
 MAX_Q = 24
 #: Relative cost gap between the best alias line and the next one needed to trust it.
 MARGIN = 0.1
+#: Pulses (about a second) of a ramp that verify a track (AliasWatch.verified).
+RAMP_PULSES = 34
 #: Phase steps of the line fit per table bin.
 FIT_STEPS_PER_BIN = 4
 
@@ -275,6 +277,16 @@ class AliasWatch:
     _at: int = -(10 ** 9)
     _rate: float = float("nan")
     _move_to: float = float("nan")                  # a move seen once, awaiting confirmation
+    #: the least rate change (cycles per pulse^2) that makes a ramp
+    ramp_accel: float = math.inf
+    #: the track (Tracker.identity) whose line has been shown to be the true one: it
+    #: followed a ramp (its matches favoured a changing rate of at least ``ramp_accel``
+    #: for ``RAMP_PULSES``: a line whose matches keep fitting while the rate changes is
+    #: no alias, the alias of a changing rate fits none of them), or its steady rate was
+    #: near no p/q over half a window (the matches single out one line)
+    verified: TrackId | None = None
+    _ramp_track: TrackId | None = None
+    _ramp_pulses: int = 0
 
     def __post_init__(self) -> None:
         self._dist = np.zeros((self.window, len(self.fine[0])))
@@ -295,6 +307,14 @@ class AliasWatch:
         if not tr.locked:
             self.verdict, self.note = None, ""
             self._rate = float("nan")
+            return
+        self._note_ramp(tr)
+        if tr.identity == self.verified:
+            # a track that followed the phase continuously from a stretch where its line
+            # was shown to be the true one cannot have jumped to an alias (a jump of 1/q
+            # in rate): a ramp through p/q keeps its answer (a ramp through 1/18 was
+            # 'ambiguous' between the rate and its mirror for 1.2 s)
+            self.verdict, self.note = None, ""
             return
         assert tr.x is not None and tr.P is not None   # locked
         rate = float(tr.x[1])
@@ -317,8 +337,14 @@ class AliasWatch:
         if len(k) < 2:
             return
         sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
-        fracs = near_fractions(rate, span=int(k[-1] - k[0]) + 1, rate_std=sd, accel=accel)
+        span = int(k[-1] - k[0]) + 1
+        fracs = near_fractions(rate, span=span, rate_std=sd, accel=accel)
         if not fracs:
+            if span >= self.window // 2 and not near_fractions(rate, span=span, rate_std=sd):
+                # near no p/q over half a window even as a steady rate: the matches single
+                # out this line (with the ramp's exemption a track on a wrong line, its
+                # rate change noisy, passed at exactly 1/16 and stayed on a mirror alias)
+                self.verified = tr.identity
             return
         # a track standing still: check it against every p/q only while the fan moves
         # (the check then has the most candidates)
@@ -329,6 +355,19 @@ class AliasWatch:
         self.verdict = v
         if v is not None:
             self._act(tr, v, int(k[-1]))
+
+    def _note_ramp(self, tr: Tracker) -> None:
+        """Count the pulses of this track on which its matches favour a changing rate
+        (the follower's model, :attr:`Tracker.follower_weight`) at a ramp of at least
+        ``ramp_accel``; after ``RAMP_PULSES`` of them the track is verified."""
+        ident = tr.identity
+        if ident != self._ramp_track:
+            self._ramp_track, self._ramp_pulses = ident, 0
+        a, _ = tr.accel
+        if tr.follower_weight > 0.5 and abs(a) >= self.ramp_accel:
+            self._ramp_pulses += 1
+            if self._ramp_pulses >= RAMP_PULSES:
+                self.verified = ident
 
     def _act(self, tr: Tracker, v: AliasVerdict, k_last: int) -> None:
         """Move the track on a confirmed clear winner; say why the answer is unknown."""

@@ -161,6 +161,13 @@ class Decision:
     """'settled' or 'changing' while turning, else None."""
     rate_change_hz_s: float | None = None
     """How fast the rotation rate changes (Hz per second, + faster), while turning."""
+    seen_still: bool = False
+    """A 'stopped' answer whose matches show the blade standing still in view (not only
+    a quiet meter): no reversal through zero can be under way (transitions.py)."""
+    at_rest: bool = False
+    """The fan was seen to come to rest and has not been seen turning since (the
+    analysis holds its static estimate): a new direction must be clearer
+    (transitions.py)."""
 
     def as_dict(self) -> dict[str, Any]:
         def r(v: float | None, n: int) -> float | None:
@@ -180,7 +187,7 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
            motion: float, scene: float, ref_cycles_per_pulse: float, ref_rate_hz: float,
            ref_direction: str = "unknown", alias_gap: float = math.inf,
            alias_note: str = "", still: float = math.nan, accel: float = 0.0,
-           changing_odds: float = 0.0,
+           changing_odds: float = 0.0, at_rest: bool = False,
            settings: DecideSettings = DecideSettings()) -> Decision:
     """Direction and rate of one window.
 
@@ -218,6 +225,9 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         Probability (0..1) that the rate is changing, i.e. the weight of the changing-rate
         model over the constant-rate one on the recent matches (:class:`tracking.Tracker`):
         above 1/2, with a change of at least ``changing_hz_s``, the rate is 'changing'.
+    at_rest : bool
+        The fan was seen to come to rest and the static estimate is held (the analysis's
+        ``StaticRemover.frozen``): a quiet meter then outweighs any track.
 
     Notes
     -----
@@ -247,8 +257,13 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     # a confident track above the floor outweighs a motion meter that saw little change
     # (a fan at a rate whose pattern recurs at none of the meter's lags)
     # (only a clear one: twice the floor, four standard deviations from zero)
+    # Not for a fan seen at rest (``at_rest``): a track then is the static room's doing
+    # (with clock drift the aligner's residual error recurs every 1 / (drift * PRI)
+    # pulses, and a held static estimate turns it into a line near 1/20 blade period per
+    # pulse: 0.43 Hz 'reversed' from a fan at rest), and a fan that starts again moves
+    # its echoes for the meter to see.
     moving = turning and conf >= s.min_confidence and rate_hz >= 2.0 * s.rate_floor_hz \
-        and abs(rate) >= 4.0 * rate_std
+        and abs(rate) >= 4.0 * rate_std and not at_rest
     quiet = still < s.motion_threshold if math.isfinite(still) else \
         (math.isfinite(motion) and motion < s.motion_threshold)
     if quiet and not moving:

@@ -195,6 +195,61 @@ def circular_rate_search(k: np.ndarray, z: np.ndarray, w: np.ndarray, max_rate: 
     return rate, (math.atan2(cbest.imag, cbest.real) / (2 * math.pi)) % 1.0, abs(cbest) / sw
 
 
+def curved_start(k: np.ndarray, z: np.ndarray, var: np.ndarray, rate: float, phase: float,
+                 max_accel: float, *, outlier: float = 0.15
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(phase, rate, rate change) at the last pulse ``k[-1]`` from matches ``z`` near the
+    line of ``rate`` and ``phase`` (at ``k[-1]``), with their covariance: weighted least
+    squares of a parabola on the wrapped residuals, the matches further than ``outlier``
+    cycles from the line left out (and, in a second pass, those beyond four of their
+    standard deviations from the first curve), and the rate change given a zero-mean
+    prior of standard deviation ``max_accel`` (so that a short, noisy stretch cannot claim
+    a steep ramp). None when fewer than four matches are left or the system is singular.
+
+    Parameters
+    ----------
+    k, z, var : ndarray, shape (n,)
+        Pulse numbers, matched phases (cycles) and their measurement variances.
+    rate, phase : float
+        The straight line (cycles per pulse, cycles at ``k[-1]``).
+    max_accel : float
+        Prior standard deviation of the rate change, cycles per pulse per pulse (> 0).
+    """
+    k = np.asarray(k, dtype=np.float64)
+    var = np.asarray(var, dtype=np.float64)
+    dk = k - k[-1]
+    X = np.stack([np.ones(len(k)), dk, 0.5 * dk ** 2], axis=1)
+    res = np.asarray(wrap(np.asarray(z, dtype=np.float64) - (phase + rate * dk)))
+    keep = (np.abs(res) <= outlier) & np.isfinite(res) & (var > 0)
+    if not max_accel > 0:
+        return None
+    got = None
+    for _ in range(2):
+        # the second pass leaves out what lies beyond four standard deviations of the
+        # first curve: wild matches that happened to fall near the line
+        if keep.sum() < 4:
+            return got
+        Xk, w = X[keep], 1.0 / var[keep]
+        A = Xk.T @ (Xk * w[:, None])
+        A[2, 2] += 1.0 / max_accel ** 2
+        try:
+            cov = np.linalg.inv(A)
+        except np.linalg.LinAlgError:
+            return got
+        if not np.all(np.isfinite(cov)):
+            return got
+        theta = cov @ (Xk.T @ (w * res[keep]))
+        got = (np.array([(phase + theta[0]) % 1.0, rate + theta[1], theta[2]]),
+               0.5 * (cov + cov.T))
+        keep &= np.abs(res - X @ theta) <= 4.0 * np.sqrt(np.where(var > 0, var, 0.0))
+    return got
+
+
+#: What :attr:`Tracker.identity` gives: (first pulse of the lock's matches, moves to an
+#: alias line, re-checks).
+TrackId = tuple[int | None, int, int]
+
+
 @dataclass(frozen=True)
 class TrackerSettings:
     """Tuning of :class:`Tracker` (from config ``tracking``).
@@ -216,6 +271,12 @@ class TrackerSettings:
         Matches used by the circular-regression initialisation.
     min_coherence : float
         Coherence needed to lock.
+    min_info : float
+        Quality the best of those matches must reach to lock. With no blade in view no
+        match reached 0.14 (a fan at rest at 7 angles in the four simulated rooms, 10 and
+        40 dB, 12 s each); a turning fan's best match in any window of 24 pulses reached
+        0.29 or more, down to the hardest case, exactly 1/16 blade period per pulse,
+        where the pulses see one informative angle every 16 pulses.
     q_accel : float
         Acceleration random-walk variance per pulse, (cycles/pulse^2)^2, of the rate
         follower. Above 0 a second, three-state filter (phase, rate, rate change per
@@ -234,6 +295,7 @@ class TrackerSettings:
     reacquire_after: int = 6
     init_pulses: int = 24
     min_coherence: float = 0.6
+    min_info: float = 0.2
     q_accel: float = 0.0
     max_accel: float = 0.0
 
@@ -289,6 +351,11 @@ class Tracker:
         return self.x is not None
 
     @property
+    def identity(self) -> TrackId:
+        """Changes whenever the track starts afresh or is moved to another line."""
+        return (self.start_k, self.relocks, self.rechecks)
+
+    @property
     def accel(self) -> tuple[float, float]:
         """The follower's (rate change per pulse, its standard deviation), cycles per
         pulse^2; (0, inf) without a lock or a follower."""
@@ -321,6 +388,18 @@ class Tracker:
         assert self.P is not None   # set with x
         return float(self.x[1]), math.sqrt(max(float(self.P[1, 1]), 0.0))
 
+    @property
+    def rate_now(self) -> tuple[float, float]:
+        """The latest rate and its standard deviation (cycles per pulse): the follower's,
+        which follows a change of speed without the constant-rate model's lag (the
+        track's without a follower)."""
+        if self.x is None:
+            return float("nan"), float("nan")
+        if self.fx is None or self.fP is None:
+            assert self.P is not None
+            return float(self.x[1]), math.sqrt(max(float(self.P[1, 1]), 0.0))
+        return float(self.fx[1]), math.sqrt(max(float(self.fP[1, 1]), 0.0))
+
     def _follow_from_track(self) -> None:
         """(Re)start the follower on the track's line, its acceleration unknown up to the
         steepest ramp."""
@@ -335,6 +414,22 @@ class Tracker:
         self.fP = P
         self.evidence = 0.0
 
+    def _follow_from_matches(self) -> None:
+        """Start the follower from a curved line through the matches of the lock (phase,
+        rate and rate change at the last one): a lock taken on a ramp (a spin-up, the far
+        side of a reversal) has a straight line's rate from the middle of its matches,
+        up to half their span behind, and the follower would start there with no change.
+        The change has the steepest ramp as its prior (:func:`curved_start`)."""
+        st = self.settings
+        if self.fx is None or self.x is None or len(self._recent) < 4:
+            return
+        k, z, q = (np.array(v, dtype=np.float64) for v in zip(*self._recent, strict=True))
+        var = np.array([self.r(qq) for qq in q])
+        got = curved_start(k, z, var, float(self.x[1]), float(self.x[0]), st.max_accel)
+        if got is None:
+            return
+        self.fx, self.fP = got
+
     def r(self, quality: float) -> float:
         """Measurement variance of a match of this quality."""
         s = self.settings.meas_sigma / max(float(quality), 0.05)
@@ -346,8 +441,17 @@ class Tracker:
         rate, phase, coh = circular_rate_search(k, z, w, self.settings.max_rate)
         return k, rate, phase, coh
 
+    def _informative(self) -> bool:
+        """Whether the recent matches can single out a line: one of them at least has a
+        quality of ``min_info``. Coherence alone cannot tell: while no blade is in view
+        (a fan at rest at a blind angle, the blind half of each blade period of a slow
+        one) every pulse matches one phase of the table at a quality of 0.01-0.1, a
+        perfectly coherent line that stands still, and a lock on it kept a spin-up from
+        being seen for up to 2.7 s."""
+        return max((q for _, _, q in self._recent), default=0.0) >= self.settings.min_info
+
     def _init(self) -> bool:
-        if len(self._recent) < self.settings.init_pulses:
+        if len(self._recent) < self.settings.init_pulses or not self._informative():
             return False
         k, rate, phase, coh = self._fit()
         self.coherence = coh
@@ -370,15 +474,17 @@ class Tracker:
         self.outlier_run = 0
         self._accepted.clear()
         self._follow_from_track()
+        self._follow_from_matches()
 
-    def recheck(self) -> bool:
+    def recheck(self, aliases: np.ndarray | None = None) -> bool:
         """Give up a track that the recent good matches mostly reject when another line
         fits them well (a lock taken in the middle of a spin-up can settle on a wrong
         line whose few accepted matches keep it alive for seconds); True if it moved.
-        Not for a rate near p/q cycles per pulse, where several lines fit the matches
-        alike and the alias check (:mod:`aliasing`) decides."""
+        ``aliases``: for a rate near p/q cycles per pulse, the lines that fit the matches
+        about alike (:func:`aliasing.alias_rates`); a best fit on one of them is left to
+        the alias check, which weighs them on the whole window."""
         st = self.settings
-        if self.x is None or len(self._accepted) < st.init_pulses:
+        if self.x is None or len(self._accepted) < st.init_pulses or not self._informative():
             return False
         wsum = sum(w for w, _ in self._accepted)
         if not wsum > 1e-12 or sum(w for w, a in self._accepted if a) >= 0.5 * wsum:
@@ -386,6 +492,9 @@ class Tracker:
         k, rate, phase, coh = self._fit()
         span = max(float(k[-1] - k[0]), 1.0)
         if coh < st.min_coherence or abs(rate - float(self.x[1])) <= 1.0 / span:
+            return False
+        if aliases is not None and len(aliases) and \
+                float(np.min(np.abs(np.asarray(aliases) - rate))) <= 1.0 / span:
             return False
         self.coherence = coh
         self._lock(k, rate, phase, coh)
@@ -438,6 +547,7 @@ class Tracker:
                     self.x = self.fx = self.fP = None
                     self._init()
             else:
+
                 if self.fx is not None:
                     assert self.fP is not None   # set with fx
                     fnu, fs = innovation(self.fx, self.fP, z, r)
