@@ -241,6 +241,19 @@ def test_a_slowing_fan_is_not_stopped_before_it_could_show_a_reversal():
     assert t is not None and 9.5 - 1e-9 <= t < 9.7
 
 
+def test_a_coasting_fan_is_not_waited_for_at_its_own_slow_slope():
+    """Slowing at 0.025 Hz/s, 0.275 Hz at 1 s to 0.15 Hz at 6 s (a fan left to coast):
+    zero by 6 + 0.15/0.025 = 12 s from the answers' line; a reversing fan is driven back
+    up at 0.05 Hz/s at least, back at 0.1 Hz 2 s after zero and seen 0.5 s later: no
+    stop before 14.5 s, and no wait for the 16.5 s the coast's own slope would give."""
+    tr = Transitions(TransitionSettings(reversal_guard_s=20.0, meter_lag_s=0.5), 10.0)
+    for i in range(10):
+        tr.step(i * 0.1, i, _d("same", 0.275))
+    k = _slow_down(tr, 1.0, 6.0, 0.275, -0.025, pulse=10)
+    t = _stop_time(tr, 6.1, k, until=25.0)
+    assert t is not None and 14.5 - 1e-9 <= t < 14.7, t
+
+
 def test_the_wait_for_a_reversal_is_capped_after_the_fan_was_last_seen_turning():
     """A stop is due within 3 s of rest: the wait never runs beyond reversal_guard_s
     (3 s) after the last turning answer (4.0 s)."""
@@ -275,7 +288,7 @@ def test_slow_answers_keep_the_guard():
     """Below three times the floor the answers neither move the line nor end the wait,
     not even answers stuck at one rate (near the floor the track lags and flattens);
     zero by 5 s from the line, + 0.1/0.1 + 0.5 s."""
-    tr = Transitions(TransitionSettings(reversal_guard_s=10.0), 10.0)
+    tr = Transitions(TransitionSettings(reversal_guard_s=10.0, meter_lag_s=0.5), 10.0)
     for i in range(10):
         tr.step(i * 0.1, i, _d("same", 0.4))
     k = _slow_down(tr, 1.0, 3.0, 0.4, -0.1, pulse=10)      # 0.2 Hz at 3 s: zero by 5 s
@@ -303,6 +316,21 @@ def test_truth_events_of_a_schedule():
     assert ev[0].t_s == pytest.approx(10 + 10 * 0.6 / 0.9, abs=0.01)
     assert ev[1].t_s == pytest.approx(30.0, abs=0.01)
     assert ev[2].t_s == pytest.approx(35 + 6 / 3, abs=0.01)
+    # true since: the zero crossing at the ramp's middle, the departure from rest
+    assert ev[0].since_s == pytest.approx(15.0, abs=0.01)
+    assert ev[1].since_s is None
+    assert ev[2].since_s == pytest.approx(35.0, abs=0.01)
+
+
+def test_a_start_called_on_the_way_to_the_timing_rate_is_a_hit():
+    """A start is right from the moment the fan leaves rest, though its latency is
+    timed from 0.15 Hz: called 1.5 s before that on a slow spin-up it is a hit (with
+    a negative latency); one called while the fan still rests is false."""
+    truth = [TruthEvent("started", 20.0, 1, since_s=17.0)]
+    sc = score_events(truth, [("started", 18.5)])
+    assert [(e.kind, lat) for e, lat in sc.hits] == [("started", -1.5)] and not sc.false
+    sc = score_events(truth, [("started", 16.5)])
+    assert not sc.hits and sc.false == [("started", 16.5)] and len(sc.missed) == 1
 
 
 def test_score_matches_in_order_and_counts_false_and_missed():

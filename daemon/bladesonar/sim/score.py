@@ -12,10 +12,11 @@ Truth events of a schedule (the fan's signed rate over time):
 
 A run's events are matched to these in order, kind by kind: a detected event within
 ``[t - early_s, t + late_s]`` of a truth event of its kind is a hit (its latency is
-``t_detected - t``); any other detected event is false, any truth event without one is
-missed. Published states are scored pulse by pulse: right, unknown or wrong, where
-stretches of transition (0 < |rate| < ``moving_hz``) count any known answer that does not
-claim the wrong direction as right.
+``t_detected - t``), and a start or a reversal from the moment it is true (the fan left
+rest, the rate passed zero) if that is earlier; any other detected event is false, any
+truth event without one is missed. Published states are scored pulse by pulse: right,
+unknown or wrong, where stretches of transition (0 < |rate| < ``moving_hz``) count any
+known answer that does not claim the wrong direction as right.
 """
 
 from __future__ import annotations
@@ -37,6 +38,9 @@ class TruthEvent:
     kind: str
     t_s: float
     sign: int            # +1 ccw, -1 cw, 0 for stopped
+    #: from when the event is true (a start: the fan leaves rest; a reversal: the rate
+    #: passes zero); None: only the matching window's early tolerance
+    since_s: float | None = None
 
 
 def truth_events(schedule: Schedule, seconds: float, *, moving_hz: float = MOVING_HZ,
@@ -47,6 +51,8 @@ def truth_events(schedule: Schedule, seconds: float, *, moving_hz: float = MOVIN
     out: list[TruthEvent] = []
     known: int | None = None          # +1 / -1 turning, 0 at rest
     rest_from: float | None = None
+    moved = 0.0                       # the fan last left rest or passed zero (s)
+    prev = 0.0
     for ti, ri in zip(t, r, strict=True):
         if ri == 0.0:
             if rest_from is None:
@@ -56,14 +62,18 @@ def truth_events(schedule: Schedule, seconds: float, *, moving_hz: float = MOVIN
                 known = 0
             elif known is None and ti - rest_from >= min_rest_s:
                 known = 0
+            prev = 0.0
             continue
+        if rest_from is not None or prev * ri < 0:
+            moved = float(ti)
         rest_from = None
+        prev = float(ri)
         if abs(ri) >= moving_hz:
             s = 1 if ri > 0 else -1
             if known == 0:
-                out.append(TruthEvent("started", float(ti), s))
+                out.append(TruthEvent("started", float(ti), s, since_s=moved))
             elif known is not None and known != s:
-                out.append(TruthEvent("reversed", float(ti), s))
+                out.append(TruthEvent("reversed", float(ti), s, since_s=moved))
             known = s
     return out
 
@@ -125,13 +135,20 @@ class Score:
 
 def score_events(truth: list[TruthEvent], detected: Iterable[tuple[str, float]], *,
                  early_s: float = 1.0, late_s: float = 6.0) -> Score:
-    """Match detected (kind, time) events to the truth, in time order."""
+    """Match detected (kind, time) events to the truth, in time order. A detected event
+    matches from ``early_s`` before its truth event, or from when it became true if that
+    is earlier (a start as soon as the fan leaves rest, a reversal as soon as the rate
+    passes zero: a slow spin-up takes seconds to reach the 0.15 Hz the latency is timed
+    from, and a start called on the way is right), until ``late_s`` after."""
     sc = Score(truth=list(truth))
     pending = sorted(detected, key=lambda e: e[1])
     used = [False] * len(pending)
     for ev in sc.truth:
+        first = ev.t_s - early_s
+        if ev.since_s is not None:
+            first = min(first, ev.since_s)
         for i, (kind, t) in enumerate(pending):
-            if not used[i] and kind == ev.kind and ev.t_s - early_s <= t <= ev.t_s + late_s:
+            if not used[i] and kind == ev.kind and first <= t <= ev.t_s + late_s:
                 used[i] = True
                 sc.hits.append((ev, t - ev.t_s))
                 break
