@@ -559,6 +559,8 @@ class PulseAnalyzer:
     #: the last pulse at which the fan was seen turning at three times the floor or more
     #: (_hold_static)
     _turning_k: int | None = None
+    #: (time, rate in Hz) of the last known state published (_bound_rate)
+    _anchor: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
@@ -638,6 +640,9 @@ class PulseAnalyzer:
                 self.new_events.extend(fired)
                 self._since = 0
                 changed = self._hold_static(int(k), d)
+                self._bound_rate(t_s)
+                if self.static.frozen:
+                    self.tracker.expect_change()     # a fan at rest may start any moment
             if rows:
                 row: dict[str, Any] = {"t_s": round(t_s, 4), "pulse": int(k),
                        "phase": round(float(m.phase[i]), 4),
@@ -826,6 +831,23 @@ class PulseAnalyzer:
             return False
         return sum(wi for wi, (acc, _) in zip(w, recent, strict=True) if acc) >= 0.8 * sum(w)
 
+    def _bound_rate(self, t_s: float) -> None:
+        """A fan seen at rest or turning slowly (at most three times the floor) cannot be
+        turning fast a moment later: a new line (a lock, a re-check, an alias move) may
+        not be faster than that speed plus twice the steepest ramp over the time since,
+        plus twice the floor. Near rest the matches barely change, and the tracker took
+        lines at 1.8 Hz (3/14 blade period per pulse) that held a stop back by 5 s."""
+        st = self.state
+        if st is not None and st.direction in ("same", "reversed", "stopped"):
+            self._anchor = (t_s, float(st.rate_hz or 0.0))
+        tr, c = self.tracker, self.cfg.tracking
+        if self._anchor is None or self._anchor[1] > 3.0 * c.rate_floor_hz:
+            tr.rate_bound = math.inf
+            return
+        t0, v0 = self._anchor
+        hz = v0 + 2.0 * c.max_ramp_hz_s * max(t_s - t0, 0.0) + 2.0 * c.rate_floor_hz
+        tr.rate_bound = hz / float(self.ref.meta["rate_hz"]) * self.ref.cycles_per_pulse
+
     def _hold_static(self, k: int, d: Decision) -> bool:
         """While the fan rests, the static estimate is the room as it was while the fan
         turned (its echo averaged over angles), held. Left to adapt it takes in the echo
@@ -919,7 +941,7 @@ class PulseAnalyzer:
         if fracs:
             if fracs[0] == 0:
                 return       # a track standing still: every p/q is its alias
-            aliases = aliasing.alias_rates(rate, fracs, max_rate=tr.settings.max_rate,
+            aliases = aliasing.alias_rates(rate, fracs, max_rate=tr.max_rate,
                                            min_rate=0.0)
         if tr.recheck(aliases):
             # the old line's rejections say nothing about the new one
@@ -985,8 +1007,6 @@ class PulseAnalyzer:
             d = decide(**args)
         if d.direction == "stopped" and self._seen_still():
             d = replace(d, seen_still=True)
-        if self.static.frozen:
-            d = replace(d, at_rest=True)
         misfit = self.scale_misfit
         if misfit and d.direction in ("same", "reversed"):
             return Decision("unknown", None, d.relative_rate, d.rate_hz, d.rpm,

@@ -61,14 +61,18 @@ class TransitionSettings:
     stop_confirm_s: float = 0.75
     change_factor: float = 2.0
     #: longest wait, after the fan was last seen turning, for a slowing fan to show a
-    #: reversal; the lag of the meter and the track in seeing it (s)
+    #: reversal; the lag of the meter and the track in seeing it (s: a track needs its
+    #: 24 matches, 0.7 s, once the blade is in view again; 0.5 s let two reversals at
+    #: 0.08-0.09 Hz/s through a blind part of the blade period read as stop and start)
     reversal_guard_s: float = 3.0
-    meter_lag_s: float = 0.5
+    meter_lag_s: float = 1.0
     #: answers over this span (s) give the slowing fan's rate of change
     slope_span_s: float = 2.0
-    #: a fan seen at rest (Decision.at_rest) needs this many times change_factor times
-    #: the floor for a new direction (0.15 Hz)
-    rest_factor: float = 1.5
+    #: the slowest spin-up a reversing fan makes on its way back from zero (Hz/s): a
+    #: fan spins up over at most about 8 s to 0.4 Hz. A slow spin-down (a fan left to
+    #: coast, 0.03 Hz/s) need not be waited for at its own slope on the way back: that
+    #: held stops back 3.4 s after rest
+    min_spinup_hz_s: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -127,12 +131,9 @@ class Transitions:
         every few pulses); (the state to publish, events confirmed now) out."""
         cand = _kind(d.direction)
         slow = self.settings.change_factor * self.settings.rate_floor_hz
-        if d.at_rest:
-            slow *= self.settings.rest_factor
         if cand in ("+", "-") and cand != self.known and not (d.rate_hz or 0.0) >= slow:
             # a new direction (a start, a reversal) is taken only from a rate clearly above
-            # the floor: the end of a spin-down leaves slow, shaky tracks of either sign,
-            # and a fan seen at rest spurious lines up to about 0.13 Hz for a second
+            # the floor: the end of a spin-down leaves slow, shaky tracks of either sign
             d = replace(d, direction=Direction.UNKNOWN.value, rotation=None,
                         reason=f"turning slowly ({d.rate_hz or 0.0:.3f} Hz < {slow:g} Hz "
                                f"needed for a new direction): {d.reason}")
@@ -155,8 +156,8 @@ class Transitions:
             self._support.popleft()
         self._cand_n = sum(n for _, n in self._support)
         if cand != self.known:
-            guard = self._reversal_guard(t_s) if cand == "stopped" and not d.seen_still \
-                else None
+            guard = self._reversal_guard(t_s) \
+                if cand == "stopped" and not d.seen_still else None
             if self._cand_n < need or guard is not None:
                 what = "a stop" if cand == "stopped" else f"turning {d.direction}"
                 why = (f"confirming {what} ({min(self._cand_n, need)} of {need} pulses)"
@@ -204,15 +205,18 @@ class Transitions:
 
     def _reversal_guard(self, t_s: float) -> float | None:
         """Until when a stop must wait for a slowing fan to show a reversal (None: no
-        wait): the time it would take, after zero, to reach ``change_factor`` times the
-        floor at its rate of change, plus the lag of seeing it, but never beyond
+        wait): the time it would take, after zero, to reach the rate a new direction
+        needs (``change_factor`` times the floor) at its rate of change (or
+        ``min_spinup_hz_s`` if that is faster: a reversing fan is driven back up), plus
+        the lag of a track locking on it, but never beyond
         ``reversal_guard_s`` after the fan was last seen turning (a stop is due within
         3 s of rest, and the slope is an estimate)."""
         st = self.settings
         if self._zero_by is None or self.known not in ("+", "-"):
             return None
         visible = st.change_factor * st.rate_floor_hz
-        until = self._zero_by + visible / max(self._slowing_hz_s, 1e-9) + st.meter_lag_s
+        comeback = max(self._slowing_hz_s, st.min_spinup_hz_s)
+        until = self._zero_by + visible / comeback + st.meter_lag_s
         until = min(until, self._last_turning + st.reversal_guard_s)
         return until if t_s < until else None
 

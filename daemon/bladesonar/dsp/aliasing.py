@@ -350,7 +350,7 @@ class AliasWatch:
         # (the check then has the most candidates)
         if fracs[0] == 0 and not moving():
             return
-        v = check_aliases(None, k, self.fine, rate, sd, max_rate=tr.settings.max_rate,
+        v = check_aliases(None, k, self.fine, rate, sd, max_rate=tr.max_rate,
                           min_rate=self.min_rate, fracs=fracs, dist=self._dist[idx])
         self.verdict = v
         if v is not None:

@@ -164,10 +164,6 @@ class Decision:
     seen_still: bool = False
     """A 'stopped' answer whose matches show the blade standing still in view (not only
     a quiet meter): no reversal through zero can be under way (transitions.py)."""
-    at_rest: bool = False
-    """The fan was seen to come to rest and has not been seen turning since (the
-    analysis holds its static estimate): a new direction must be clearer
-    (transitions.py)."""
 
     def as_dict(self) -> dict[str, Any]:
         def r(v: float | None, n: int) -> float | None:

@@ -35,6 +35,12 @@ import numpy as np
 
 #: Pulses over which the track and the rate follower are compared (forgetting).
 FOLLOW_MEMORY = 24.0
+#: Follower weight above which the track takes the follower's line for a match only the
+#: follower expects (Tracker._follower_takes).
+SYNC_WEIGHT = 0.9
+#: Largest rate change the follower keeps, as a multiple of the steepest ramp
+#: (TrackerSettings.max_accel).
+ACCEL_LIMIT = 2.0
 
 
 @overload
@@ -338,6 +344,10 @@ class Tracker:
     fP: np.ndarray | None = None
     evidence: float = 0.0        # log likelihood ratio follower : track, recent matches
     rechecks: int = 0            # tracks given up because another line fit the matches
+    syncs: int = 0               # times the track took the follower's line (_follower_takes)
+    #: largest |rate| a new line may have (cycles per pulse): the analysis bounds it by
+    #: how fast a fan seen near rest can have sped up since (PulseAnalyzer._bound_rate)
+    rate_bound: float = math.inf
     _recent: deque[tuple[int, float, float]] = field(default_factory=deque)
     # (weight, accepted) of _recent
     _accepted: deque[tuple[float, bool]] = field(default_factory=deque)
@@ -400,6 +410,37 @@ class Tracker:
             return float(self.x[1]), math.sqrt(max(float(self.P[1, 1]), 0.0))
         return float(self.fx[1]), math.sqrt(max(float(self.fP[1, 1]), 0.0))
 
+    def expect_change(self) -> None:
+        """A fan at rest may start at any moment at up to the steepest ramp: the
+        follower's rate change is kept that uncertain (at rest its variance shrinks to
+        nothing, and a start was then taken up over seconds: the published rate 10-15 %
+        behind the fan for the first second of every start)."""
+        if self.fP is not None and self.settings.max_accel > 0:
+            v = self.settings.max_accel ** 2
+            if float(self.fP[2, 2]) < v:
+                self.fP = self.fP.copy()
+                self.fP[2, 2] = v
+
+    def _limit_accel(self) -> None:
+        """No fan changes speed faster than ACCEL_LIMIT times the steepest ramp: the
+        follower's rate change is held within it (the estimate projected onto the
+        bound, its variance kept). A lock on a spin-up from rest had it at 0.5 Hz/s, and
+        the rate it gave was twice the fan's for a second."""
+        if self.fx is None or not self.settings.max_accel > 0:
+            return
+        lim = ACCEL_LIMIT * self.settings.max_accel
+        if abs(float(self.fx[2])) > lim:
+            self.fx = self.fx.copy()
+            self.fx[2] = math.copysign(lim, float(self.fx[2]))
+
+    def _follower_takes(self, z: float, r: float) -> bool:
+        """Whether a match the track rejects is one the follower, clearly favoured by the
+        recent matches (weight over SYNC_WEIGHT), expects (within the gate)."""
+        if self.fx is None or self.fP is None or self.follower_weight <= SYNC_WEIGHT:
+            return False
+        fnu, fs = innovation(self.fx, self.fP, z, r)
+        return fnu * fnu <= self.settings.gate_sigma ** 2 * fs
+
     def _follow_from_track(self) -> None:
         """(Re)start the follower on the track's line, its acceleration unknown up to the
         steepest ramp."""
@@ -429,6 +470,7 @@ class Tracker:
         if got is None:
             return
         self.fx, self.fP = got
+        self._limit_accel()
 
     def r(self, quality: float) -> float:
         """Measurement variance of a match of this quality."""
@@ -436,10 +478,27 @@ class Tracker:
         return min(s, 0.5) ** 2
 
     def _fit(self) -> tuple[np.ndarray, float, float, float]:
-        """Circular regression of the recent matches: (pulses, rate, phase, coherence)."""
+        """Circular regression of the recent matches: (pulses, rate, phase, coherence).
+
+        The coherence is the lower of the quality-weighted one and that of the same line
+        with the squared qualities as weights, which the few clear matches dominate: a
+        window of a fan just come to rest held five clear matches at one phase and
+        nineteen of a few hundredths' quality wandering about, and the regression found
+        a line at 0.12 Hz through the wanderers that missed the clear ones (a false
+        'reversed' a second after the rest)."""
         k, z, w = (np.array(v) for v in zip(*self._recent, strict=True))
-        rate, phase, coh = circular_rate_search(k, z, w, self.settings.max_rate)
+        rate, phase, coh = circular_rate_search(k, z, w, self.max_rate)
+        w2 = w * w
+        if float(w2.sum()) > 0:
+            u = np.exp(2j * np.pi * (z - phase - rate * (k - k[-1])))
+            coh = min(coh, float(abs(np.sum(w2 * u)) / w2.sum()))
         return k, rate, phase, coh
+
+    @property
+    def max_rate(self) -> float:
+        """The largest |rate| a line may have now: the slew bound, or the analysis's
+        physical bound when it is lower."""
+        return min(self.settings.max_rate, self.rate_bound)
 
     def _informative(self) -> bool:
         """Whether the recent matches can single out a line: one of them at least has a
@@ -539,6 +598,16 @@ class Tracker:
             r = self.r(quality)
             nu, s = innovation(self.x, self.P, z, r)
             slew = st.max_rate + 3.0 * math.sqrt(max(float(self.P[1, 1]), 0.0))
+            if (nu * nu > st.gate_sigma ** 2 * s or abs(nu) > max(slew, 0.05)) \
+                    and self._follower_takes(z, r):
+                # the constant-rate track lags a ramp the follower is on: it takes the
+                # follower's line instead of counting the match out (six in a row threw
+                # the track away in the middle of spin-ups, and the follower with it)
+                assert self.fx is not None and self.fP is not None
+                self.x = np.array([float(self.fx[0]), float(self.fx[1])])
+                self.P = 0.5 * (self.fP[:2, :2] + self.fP[:2, :2].T)
+                self.syncs += 1
+                nu, s = innovation(self.x, self.P, z, r)
             if nu * nu > st.gate_sigma ** 2 * s or abs(nu) > max(slew, 0.05):
                 outlier = True
                 self.outliers += 1
@@ -555,6 +624,7 @@ class Tracker:
                     ll = 0.5 * (math.log(s / fs) + nu * nu / s - fnu * fnu / fs)
                     self.evidence += ll - self.evidence / FOLLOW_MEMORY
                     self.fx, self.fP = kalman_update(self.fx, self.fP, z, r)
+                    self._limit_accel()
                 self.x, self.P = kalman_update(self.x, self.P, z, r)
                 self.outlier_run = 0
                 self.updates += 1
