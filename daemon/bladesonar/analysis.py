@@ -351,6 +351,8 @@ SETTLED_AGREE = 0.03
 #: lie up to about 8 s before its stop is confirmed) (PulseAnalyzer._hold_static).
 SNAPSHOT_EVERY = 17
 SNAPSHOTS = 24
+#: Longest hold of the static estimate while the fan rests, s (_hold_static).
+HOLD_S = 600.0
 
 #: Largest range scale (c now / c at the reference) followed by rescaling: beyond it
 #: (about 17 degrees C) the reference no longer fits and the answer is unknown.
@@ -559,6 +561,7 @@ class PulseAnalyzer:
     #: the last pulse at which the fan was seen turning at three times the floor or more
     #: (_hold_static)
     _turning_k: int | None = None
+    _held_k: int = 0                             # the pulse the hold began
     #: (time, rate in Hz) of the last known state published (_bound_rate)
     _anchor: tuple[float, float] | None = None
 
@@ -862,7 +865,10 @@ class PulseAnalyzer:
         Held from the first 'stopped' decision after the fan was seen turning at three
         times the floor (the copy of the estimate from then) until it is seen turning at
         that rate again (a weak answer in the old direction from a spurious line near
-        rest does not count). True when the estimate changed."""
+        rest does not count), but no longer than HOLD_S: over a long rest the room itself
+        drifts (a few degrees of temperature move its strong static echoes), and an old
+        estimate would leave that drift in every residual. True when the estimate
+        changed."""
         st = self.state
         turning = st is not None and st.direction in ("same", "reversed") and \
             (st.rate_hz or 0.0) >= 3.0 * self.cfg.tracking.rate_floor_hz
@@ -874,9 +880,11 @@ class PulseAnalyzer:
                 if held:
                     self.static.mean[:] = held[-1]
                     self.static.frozen = True
+                    self._held_k = k
                     return True
-        elif turning:
+        elif turning or k - self._held_k > HOLD_S * self.cfg.prf_hz:
             self.static.frozen = False
+            self._turning_k = None          # not held again before the fan turns again
             return True
         return False
 
@@ -927,9 +935,14 @@ class PulseAnalyzer:
         """A track the good matches mostly reject is given up for a line that fits them
         (:meth:`Tracker.recheck`); near p/q cycles per pulse only for a line that is not
         one of its aliases, among which the alias check chooses (a spin-up that locked on
-        a spurious line near 3/14 stayed `unknown` for 1.8 s)."""
+        a spurious line near 3/14 stayed `unknown` for 1.8 s). Not a track the alias watch
+        has verified (it followed a ramp, or a steady rate near no p/q, over seconds): the
+        re-check is for a lock taken on a wrong line, and at the edge of a slow fan's
+        blind half-period the matcher jumps to the mirror angle at high quality often
+        enough to outweigh the clear matches a right track accepts (a line at 1.3 Hz
+        replaced one right at 0.24 Hz for 90 s)."""
         tr = self.tracker
-        if not tr.locked:
+        if not tr.locked or self.aliases.verified == tr.identity:
             return
         assert tr.x is not None and tr.P is not None and tr.last_k is not None   # locked
         rate = float(tr.x[1])

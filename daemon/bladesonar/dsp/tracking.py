@@ -38,6 +38,9 @@ FOLLOW_MEMORY = 24.0
 #: Follower weight above which the track takes the follower's line for a match only the
 #: follower expects (Tracker._follower_takes).
 SYNC_WEIGHT = 0.9
+#: Clear matches (quality min_info or more) the track must have rejected among the recent
+#: ones before it is re-checked (Tracker.recheck).
+RECHECK_REJECTED = 3
 #: Largest rate change the follower keeps, as a multiple of the steepest ramp
 #: (TrackerSettings.max_accel).
 ACCEL_LIMIT = 2.0
@@ -547,6 +550,12 @@ class Tracker:
             return False
         wsum = sum(w for w, _ in self._accepted)
         if not wsum > 1e-12 or sum(w for w, a in self._accepted if a) >= 0.5 * wsum:
+            return False
+        # the rejected share must rest on several clear matches: one wild match of
+        # quality 0.7 among a slow fan's four clear ones in 24 pulses made that share
+        # 0.8, and the line through it (1.3 Hz) replaced a track right for 97 s
+        clear = st.min_info ** 2
+        if sum(1 for w, a in self._accepted if not a and w >= clear) < RECHECK_REJECTED:
             return False
         k, rate, phase, coh = self._fit()
         span = max(float(k[-1] - k[0]), 1.0)
