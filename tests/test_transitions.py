@@ -165,6 +165,56 @@ def test_rate_follows_a_ramp(scene, reference, schedule, seed):
     assert abs(rows[-1]["rate_hz"] - true[-1]) < 0.02 * true[-1]
 
 
+
+@pytest.fixture(scope="module")
+def slow_reference(scene):
+    x, _ = simulate(scene, config.Config(), 20.0, schedule="ccw:0.2:20", seed=1, snr_db=20.0)
+    return build_reference(x, config.Config(), "ccw")
+
+
+# (reference, schedule, seed, direction, 95th percentile rate error against the truth):
+# a slow fan against a fast reference (0.15-0.18 Hz against 0.45 Hz: few clear matches
+# per second, a blind half-period of up to 1.7 s), a fast one against a slow reference
+# (0.7 Hz against 0.2 Hz, 3.5x: the table is stepped through 3.5 times faster than it was
+# recorded), and a speed wobble of 3-4 % (measured: 5.1-7.9 %, 0.3-0.7 %, 6.9-9.2 %)
+STEADY = {
+    "slow-cw-against-fast": ("fast", "cw:0.18:30", 3, "reversed", 0.10),
+    "slowest-ccw-against-fast": ("fast", "ccw:0.15:30", 4, "same", 0.10),
+    "fast-ccw-against-slow": ("slow", "ccw:0.7:30", 3, "same", 0.02),
+    "fast-cw-against-slow": ("slow", "cw:0.7:30", 4, "reversed", 0.02),
+    "wobble-3pc": ("fast", "ccw:0.45:30,wobble:0.03:1.7", 3, "same", 0.10),
+    "wobble-4pc": ("fast", "cw:0.3:30,wobble:0.04:2.3", 4, "reversed", 0.12),
+}
+
+
+@pytest.mark.parametrize("name", list(STEADY))
+def test_slow_fast_and_wobbling_fans_hold_their_answer(scene, reference, slow_reference,
+                                                       name):
+    """A fan that keeps turning (at a speed far from the reference's, or with a wobble of
+    a few per cent) is one known direction from its first answer on: no event, no wrong
+    answer, no unknown over 0.5 s, a published rate within the bound of the simulator's, and
+    a wobble is not a speed change ('settled' throughout)."""
+    which, schedule, seed, direction, p95 = STEADY[name]
+    ref = reference if which == "fast" else slow_reference
+    score, rows, _ = _run(scene, ref, schedule, 30, seed=seed)
+    assert not score.truth and not score.false, score.summary()
+    assert score.wrong == 0, score.summary()
+    t = np.array([r["t_s"] for r in rows])
+    first = next(i for i, r in enumerate(rows) if r["direction"] != "unknown")
+    assert t[first] <= 4.0                       # one window (3 s) and the confirmation
+    late = [r["direction"] for r in rows[first:]]
+    assert set(late) <= {direction, "unknown"} and late.count(direction) >= 0.98 * len(late)
+    sc = Score(truth=[])
+    score_gaps(sc, list(t), [r["direction"] for r in rows], parse(schedule).rate_at(t - 0.03))
+    assert not any(d > 0.5 for _, d in sc.gaps), sc.gaps
+    true = np.abs(parse(schedule).rate_at(t[first:] - 0.03))
+    err = np.array([1.0 if r["rate_hz"] is None else abs(r["rate_hz"] - a) / a
+                    for r, a in zip(rows[first:], true, strict=True)])
+    assert np.percentile(err, 95) <= p95, np.percentile(err, 95)
+    settled = [r["rate_state"] == "settled" for r, tr in zip(rows, t, strict=True) if tr > 5.0]
+    assert np.mean(settled) >= 0.95, np.mean(settled)
+
+
 def _d(direction, rate=0.4):
     turning = direction in ("same", "reversed")
     return Decision(direction, None, None, rate if turning else 0.0, None, 0.9, "test")

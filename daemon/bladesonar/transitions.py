@@ -62,10 +62,12 @@ class TransitionSettings:
     change_factor: float = 2.0
     #: longest wait, after the fan was last seen turning, for a slowing fan to show a
     #: reversal; the lag of the meter and the track in seeing it (s: a track needs its
-    #: 24 matches, 0.7 s, once the blade is in view again; 0.5 s let two reversals at
-    #: 0.08-0.09 Hz/s through a blind part of the blade period read as stop and start)
+    #: 24 matches, 0.7 s, once the blade is in view again, and 0.5 s to confirm; 0.5 s
+    #: let two reversals at 0.08-0.09 Hz/s through a blind part of the blade period read
+    #: as stop and start, 1.0 s one at 0.065 Hz/s whose slope the lagging answers put at
+    #: 0.094 Hz/s; 1.3 s costs a coasting stop 0.3 s, up to 3.4 s after rest)
     reversal_guard_s: float = 3.0
-    meter_lag_s: float = 1.0
+    meter_lag_s: float = 1.3
     #: answers over this span (s) give the slowing fan's rate of change
     slope_span_s: float = 2.0
     #: the slowest spin-up a reversing fan makes on its way back from zero (Hz/s): a
