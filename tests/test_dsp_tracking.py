@@ -271,3 +271,26 @@ def test_matches_with_no_blade_in_view_never_lock():
     assert not tr.locked
     tr.update(200, 0.71, 0.6)
     assert tr.locked and abs(tr.x[1]) < 1e-3
+
+
+def test_a_lost_track_is_not_taken_up_again_faster_than_the_bound():
+    """A slow fan (0.024 cycles per pulse) whose matches jump to one clean, faster line
+    (bench_day: the mirror angle in its blind half-period drew one at 0.167, 1.42 Hz,
+    from a fan at 0.2 Hz): with the rate bound the analysis sets from the last known
+    speed (0.035 here) the tracker takes no lock on the fast line; without a bound the
+    same matches lock on it, so the bound is what keeps it out."""
+    def run(bound):
+        tr = Tracker(TrackerSettings(max_rate=0.45))
+        k, z, q = _matches(0.024, 120, outliers=0.0, seed=11)
+        for a, b, c in zip(k, z, q, strict=True):
+            tr.update(int(a), float(b), float(c))
+        assert tr.locked and abs(tr.rate[0] - 0.024) < 2e-3
+        tr.rate_bound = bound
+        noise = 0.01 * np.random.default_rng(12).standard_normal(60)
+        for i, a in enumerate(range(120, 180)):
+            tr.update(a, float(np.mod(0.7 + 0.13 * a + noise[i], 1.0)), 0.8)
+        return tr
+    bounded = run(0.035)
+    assert not (bounded.locked and abs(bounded.rate[0]) > 0.035)
+    free = run(float("inf"))
+    assert free.locked and abs(free.rate[0] - 0.13) < 3e-3

@@ -353,6 +353,9 @@ SNAPSHOT_EVERY = 17
 SNAPSHOTS = 24
 #: Longest hold of the static estimate while the fan rests, s (_hold_static).
 HOLD_S = 600.0
+#: How long a turning state must have been published before its speed bounds new lines,
+#: s (_bound_rate).
+ANCHOR_TRUST_S = 2.0
 
 #: Largest range scale (c now / c at the reference) followed by rescaling: beyond it
 #: (about 17 degrees C) the reference no longer fits and the answer is unknown.
@@ -564,6 +567,8 @@ class PulseAnalyzer:
     _held_k: int = 0                             # the pulse the hold began
     #: (time, rate in Hz) of the last known state published (_bound_rate)
     _anchor: tuple[float, float] | None = None
+    _known_dir: str | None = None               # the published direction, and since when
+    _known_t: float = 0.0
 
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
@@ -835,16 +840,26 @@ class PulseAnalyzer:
         return sum(wi for wi, (acc, _) in zip(w, recent, strict=True) if acc) >= 0.8 * sum(w)
 
     def _bound_rate(self, t_s: float) -> None:
-        """A fan seen at rest or turning slowly (at most three times the floor) cannot be
-        turning fast a moment later: a new line (a lock, a re-check, an alias move) may
-        not be faster than that speed plus twice the steepest ramp over the time since,
-        plus twice the floor. Near rest the matches barely change, and the tracker took
-        lines at 1.8 Hz (3/14 blade period per pulse) that held a stop back by 5 s."""
+        """A fan seen at rest or turning at some speed cannot be turning much faster a
+        moment later: a new line (a lock, a re-check, an alias move) may not be faster
+        than that speed plus twice the steepest ramp over the time since, plus twice the
+        floor. Near rest the matches barely change, and the tracker took lines at 1.8 Hz
+        (3/14 blade period per pulse) that held a stop back by 5 s; a slow fan's matches
+        jump to the mirror angle in its blind half-period, and a track lost there was
+        taken up again at 1.42 Hz from a fan at 0.2 Hz (1.8 s of 'rate ambiguous')."""
         st = self.state
-        if st is not None and st.direction in ("same", "reversed", "stopped"):
-            self._anchor = (t_s, float(st.rate_hz or 0.0))
         tr, c = self.tracker, self.cfg.tracking
-        if self._anchor is None or self._anchor[1] > 3.0 * c.rate_floor_hz:
+        if st is None or st.direction != self._known_dir:
+            self._known_dir = None if st is None else st.direction
+            self._known_t = t_s
+        if st is not None and st.direction in ("same", "reversed", "stopped"):
+            v = float(st.rate_hz or 0.0)
+            # a speed above three times the floor bounds only once it has been published
+            # for ANCHOR_TRUST_S: a first answer on a wrong line (near 1/16 blade period
+            # per pulse, 0.29 Hz for 0.53 Hz) would otherwise keep out the right one
+            if v <= 3.0 * c.rate_floor_hz or t_s - self._known_t >= ANCHOR_TRUST_S:
+                self._anchor = (t_s, v)
+        if self._anchor is None:
             tr.rate_bound = math.inf
             return
         t0, v0 = self._anchor
