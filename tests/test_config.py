@@ -31,6 +31,18 @@ def test_bad_values_name_key_value_and_range(data, key, words):
     assert words in str(ei.value)
 
 
+def test_text_values_are_capped_and_a_schedule_may_be_a_simulated_day():
+    day = ",".join(["ccw:0.45:60", "stop:0:30~8", "cw:0.312:75.5~4.2"] * 400)  # 20 h
+    assert 1024 < len(day) < config.MAX_SCHEDULE
+    assert config.from_mapping({"sim": {"schedule": day}}).sim.schedule == day
+    with pytest.raises(ConfigError, match="at most 1024 characters long") as ei:
+        config.from_mapping({"sim": {"scene": "x" * 1025}})
+    assert ei.value.key == "sim.scene"
+    with pytest.raises(ConfigError, match=f"at most {config.MAX_SCHEDULE} characters") as ei:
+        config.from_mapping({"sim": {"schedule": "ccw:0.45:60," * 6000}})
+    assert ei.value.key == "sim.schedule"
+
+
 def test_gate_beyond_one_pri_is_refused_with_the_physical_limit():
     # c * pri / fs / 2 = 343 * 1297 / 44100 / 2 = 5.0439 m
     with pytest.raises(ConfigError, match=r"at most 5\.044 m"):

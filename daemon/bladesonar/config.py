@@ -17,6 +17,12 @@ from typing import Any
 from .errors import ConfigError
 from .schema import build, fields_of, opt, section_type
 
+#: Longest ``sim.schedule``, characters: a simulated day is a legitimate long value (the
+#: soak's two hours take about 1900 characters), so it may hold 64 Ki (about 3000
+#: segments, more than two simulated days; the config file itself is capped at 256 KiB);
+#: every other text value stops at ``schema.MAX_TEXT``.
+MAX_SCHEDULE = 1 << 16
+
 
 @dataclass(frozen=True)
 class AudioSettings:
@@ -155,7 +161,7 @@ class SimSettings:
                         "(DIR cw, ccw or stop); SECONDS~RAMP_S ramps linearly from the "
                         "previous rate over the segment's first RAMP_S s; an item "
                         "wobble:A:T scales the speed by 1 + A sin(2 pi t / T); the last "
-                        "segment repeats")
+                        "segment repeats", max_len=MAX_SCHEDULE)
     snr_db: float = opt(20.0, "fan-echo to noise power inside the range gate", lo=-30.0,
                         hi=120.0, unit="dB")
     seed: int = opt(1, "random seed of the simulated noise and start offset", lo=0,

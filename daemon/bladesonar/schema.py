@@ -29,12 +29,13 @@ MAX_TEXT = 1024
 def opt(default: Any, doc: str, *, lo: float | None = None, hi: float | None = None,
         choices: tuple[Any, ...] | None = None, unit: str | None = None,
         nullable: bool = False, pattern: str | None = None, lo_open: bool = False,
-        note: str | None = None) -> Any:
+        note: str | None = None, max_len: int = MAX_TEXT) -> Any:
     """Declare a document field: default, one-line doc, and its allowed domain (``note``:
-    said in brackets after a refusal: what the value means or what to do instead)."""
+    said in brackets after a refusal: what the value means or what to do instead;
+    ``max_len``: longest text value, characters)."""
     return field(default=default, metadata=dict(
         doc=doc, lo=lo, hi=hi, choices=choices, unit=unit, nullable=nullable,
-        pattern=pattern, lo_open=lo_open, note=note))
+        pattern=pattern, lo_open=lo_open, note=note, max_len=max_len))
 
 
 def number_text(x: float) -> str:
@@ -96,8 +97,9 @@ def check_value(key: str, f: dataclasses.Field[Any], value: Any, lines: Mapping[
     elif tp is str:
         if not isinstance(value, str) or not value:
             fail(allowed_text(md, "a non-empty string"))
-        if len(value) > MAX_TEXT:
-            fail(f"must be at most {MAX_TEXT} characters long (this one has {len(value)})")
+        longest = md.get("max_len", MAX_TEXT)
+        if len(value) > longest:
+            fail(f"must be at most {longest} characters long (this one has {len(value)})")
     if md.get("choices") is not None and value not in md["choices"]:
         close = difflib.get_close_matches(str(value), [str(c) for c in md["choices"]], 1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""

@@ -66,8 +66,11 @@ class SimAudio:
         self.sigma = float(ref.prepare(max(span, 1.0))["snr"]["noise_sigma"])
         self._new_run()
         self._t0 = self.clock()
+        sched = c.sim.schedule   # a long one (a simulated day) is cut in the log
+        if len(sched) > 200:
+            sched = f"{sched[:160]}... ({len(ref.schedule.segments)} segments)"
         log.info("simulated audio: scene %s, schedule %s, SNR %g dB (noise sigma %.3g), %s",
-                 c.sim.scene, c.sim.schedule, c.sim.snr_db, self.sigma,
+                 c.sim.scene, sched, c.sim.snr_db, self.sigma,
                  "paced in real time" if c.sim.realtime else "as fast as possible")
 
     def _new_run(self) -> None:
