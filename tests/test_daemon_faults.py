@@ -1,13 +1,16 @@
 """Faults around the daemon and the writers, on the real processes (sim backend, no broker):
 a reference corrupted and restored under a running daemon, a SIGHUP during start-up,
-temporary files left by a kill -9, and a full disk under ``simulate``."""
+temporary files left by a kill -9, a kill -9 in the middle of ``reference`` and of
+``simulate`` writing, and a full disk under ``simulate``."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import signal
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -16,8 +19,9 @@ import pytest
 
 from bladesonar import config
 from bladesonar.analysis import build_reference
-from bladesonar.io.reference import save_reference
+from bladesonar.io.reference import load_reference, read_reference, save_reference
 from bladesonar.io.scene_file import load_scene
+from bladesonar.io.wav import WavWriter, read_wav
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import Schedule
 from loopback import ROOT, SCENE, bladesonar_cmd
@@ -163,6 +167,172 @@ def test_stale_temporary_files_are_removed_at_start(tmp_path):
     assert r.returncode == 0, r.stderr
     # only the stale temp of this reference goes: a young one may be a write in progress
     assert not stale.exists() and fresh.exists() and other.exists()
+
+
+#: The CLI as ``python -m bladesonar`` runs it, with an audit hook that stops the process
+#: (SIGSTOP) at one point of an atomic write of the file named ``NAME``: ``created``, its
+#: temporary file just created and still empty (the first ``open`` audit event on a file
+#: descriptor, os.fdopen, after the ``tempfile.mkstemp`` event of that name, which comes
+#: before the file exists), or ``complete``, the temporary file written and fsynced and
+#: about to be renamed over ``NAME`` (the ``os.rename`` event, which ``os.replace``
+#: raises). A breakpoint, not a mock: the code runs unchanged, and the test kills the
+#: stopped process with SIGKILL exactly there.
+_PAUSE_AT = r"""
+import os, runpy, signal, sys
+point, name = sys.argv[1], sys.argv[2]
+armed = False
+
+def hook(ev, args):
+    global armed
+    if ev == "tempfile.mkstemp":
+        armed = os.path.basename(args[0]).startswith("." + name + ".")
+    elif ev == "open" and armed and isinstance(args[0], int):
+        armed = False
+        if point == "created":
+            os.kill(os.getpid(), signal.SIGSTOP)
+    elif ev == "os.rename" and point == "complete" \
+            and os.path.basename(os.fsdecode(args[1])) == name:
+        os.kill(os.getpid(), signal.SIGSTOP)
+
+sys.addaudithook(hook)
+sys.argv = ["bladesonar", *sys.argv[3:]]
+runpy.run_module("bladesonar", run_name="__main__", alter_sys=True)
+"""
+
+
+def _stop_at(point: str, name: str, *args: str) -> subprocess.Popen:
+    """``bladesonar ARGS``, stopped at ``point`` of the atomic write of ``name``."""
+    p = subprocess.Popen([sys.executable, "-c", _PAUSE_AT, point, name, *args],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                         cwd=ROOT, env=_env())
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if p.poll() is not None:
+            raise AssertionError(f"exit {p.returncode} before {point} of {name}: "
+                                 f"{p.communicate()[1][-2000:]}")
+        stat = Path(f"/proc/{p.pid}/stat").read_text()
+        if stat[stat.rindex(")") + 2] == "T":
+            return p
+        time.sleep(0.01)
+    p.kill()
+    raise AssertionError(f"not stopped at {point} of {name} within 60 s")
+
+
+def _kill_9(p: subprocess.Popen) -> None:
+    p.send_signal(signal.SIGKILL)
+    p.communicate(timeout=30)
+    assert p.returncode == -signal.SIGKILL
+
+
+def _temps(folder: Path, name: str) -> list[Path]:
+    """The hidden temporary files of atomic writes of ``name`` in ``folder``."""
+    return sorted(q for q in folder.iterdir()
+                  if q.name.startswith(f".{name}.") and q.name.endswith(".tmp"))
+
+
+def _age(paths, seconds: float) -> None:
+    """Set the mtime back, as if the kill had been ``seconds`` ago."""
+    old = time.time() - seconds
+    for q in paths:
+        os.utime(q, (old, old))
+
+
+def test_kill_9_during_a_reference_write_never_leaves_a_partial_reference(tmp_path,
+                                                                          reference_file):
+    """``bladesonar reference`` killed with SIGKILL at both edges of its write: just after
+    its temporary file exists (no reference yet: none appears), and with the new reference
+    complete in the temporary file, just before the rename (a previous reference in
+    place: it stays, byte for byte, and loads with its checksum). Nothing partial is ever
+    at the destination's name. A temporary file left behind goes when ``run`` starts once
+    older than 60 s (mtime set back; a younger one stays), and ``run`` loads the previous
+    reference; the next ``reference`` to that path clears the rest and writes in full."""
+    cfg_path = _config(tmp_path)
+    state = tmp_path / "state"
+    dest = state / "reference.npz"
+    x, _ = simulate(load_scene(SCENE), config.Config(), 8.0,
+                    schedule=Schedule.constant(0.4, "ccw"), snr_db=20.0, seed=6)
+    wav = tmp_path / "rec.wav"
+    with WavWriter(wav, 44100) as w:
+        w.write(x)
+    args = ("reference", "--config", str(cfg_path), "--direction", "ccw", "--out",
+            str(dest), str(wav))
+
+    p = _stop_at("created", dest.name, *args)
+    first = _temps(state, dest.name)
+    assert len(first) == 1 and first[0].stat().st_size == 0 and not dest.exists()
+    _kill_9(p)
+    assert not dest.exists() and _temps(state, dest.name) == first
+
+    previous = reference_file.read_bytes()
+    dest.write_bytes(previous)
+    p = _stop_at("complete", dest.name, *args)
+    (second,) = set(_temps(state, dest.name)) - set(first)
+    new = load_reference(second)          # the new reference, whole, not yet in place
+    assert new.meta["rate_hz"] == pytest.approx(0.4, rel=0.01)
+    _kill_9(p)
+    assert dest.read_bytes() == previous
+    ref, digest = read_reference(dest)    # loads: structure, values and checksum
+    assert digest == hashlib.sha256(previous).hexdigest()
+    assert ref.meta["rate_hz"] == pytest.approx(0.45, rel=0.01)
+    assert sorted(state.iterdir()) == sorted([dest, *first, second])
+
+    # run: the temporary files older than 60 s go, a young one may be a write going on
+    _age(first, 120)
+    r = subprocess.run(bladesonar_cmd("run", "--config", str(cfg_path), "--seconds", "0.5"),
+                       capture_output=True, text=True, cwd=ROOT, env=_env(), timeout=60)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert _temps(state, dest.name) == [second] and dest.read_bytes() == previous
+    assert r.stderr.count("left by an interrupted write") == 1
+    assert f"reference loaded: {digest[:12]}" in r.stderr
+    # the next reference to that path clears what is stale, then writes in full
+    _age([second], 120)
+    r = subprocess.run(bladesonar_cmd(*args), capture_output=True, text=True, cwd=ROOT,
+                       env=_env(), timeout=60)
+    assert r.returncode == 0 and "left by an interrupted write" in r.stderr, r.stderr
+    assert sorted(state.iterdir()) == [dest]
+    assert load_reference(dest).meta["rate_hz"] == pytest.approx(0.4, rel=0.01)
+
+
+def test_kill_9_during_simulate_never_leaves_a_partial_recording(tmp_path):
+    """``simulate`` streams its WAV and truth sidecar into temporary files: killed with
+    SIGKILL in the middle (samples flowing), the previous recording and sidecar stay as
+    they were and still read; the next ``simulate`` to the same path removes the
+    temporary files once older than 60 s and writes a whole new pair."""
+    out = tmp_path / "out" / "x.wav"
+    truth = out.with_name("x.truth.json")
+
+    def sim(seconds: float) -> list[str]:
+        return bladesonar_cmd("simulate", "--scene", str(SCENE), "--seconds", str(seconds),
+                              "--rate", "0.45", "--no-paths", "--quiet", "--out", str(out))
+
+    r = subprocess.run(sim(2), capture_output=True, text=True, cwd=ROOT, env=_env(),
+                       timeout=60)
+    assert r.returncode == 0, r.stderr
+    prev_wav, prev_truth = out.read_bytes(), truth.read_bytes()
+
+    p = subprocess.Popen(sim(3600), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         text=True, cwd=ROOT, env=_env())
+    deadline = time.monotonic() + 60
+    # until the samples stream in: more than the header and a first buffer on disk
+    while not any(q.stat().st_size > 1 << 16 for q in _temps(out.parent, out.name)):
+        assert p.poll() is None, p.communicate()[1][-2000:]
+        assert time.monotonic() < deadline, "no temporary WAV growing within 60 s"
+        time.sleep(0.02)
+    _kill_9(p)
+    left = [*_temps(out.parent, out.name), *_temps(out.parent, truth.name)]
+    assert len(left) == 2
+    assert out.read_bytes() == prev_wav and truth.read_bytes() == prev_truth
+    assert len(read_wav(out)[0]) == 2 * 44100
+    assert json.loads(truth.read_text())["summary"]["complete"] is True
+
+    _age(left, 120)
+    r = subprocess.run(sim(1), capture_output=True, text=True, cwd=ROOT, env=_env(),
+                       timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.count("left by an interrupted write") == 2
+    assert sorted(out.parent.iterdir()) == sorted([out, truth])
+    assert len(read_wav(out)[0]) == 44100
+    assert json.loads(truth.read_text())["summary"]["complete"] is True
 
 
 def test_simulate_on_a_full_disk_keeps_nothing_and_says_so_in_one_line(tmp_path):

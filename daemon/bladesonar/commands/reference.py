@@ -84,8 +84,20 @@ def run(args: argparse.Namespace) -> int:
                         max_samples=REFERENCE_SAMPLES, cut=True)
         out_path = args.out
     ref = build_reference(x, cfg, args.direction)
+    _remove_stale_temps(out_path)
     save_reference(ref, out_path)
     out = ref.summary()
     out["out"] = str(out_path)
     print(json.dumps(out))
     return 0
+
+
+def _remove_stale_temps(path: str) -> None:
+    """Temporary files a killed write of ``path`` left behind (older than
+    ``io.files.STALE_TEMP_S``) go before this write."""
+    import logging
+
+    from ..io.files import STALE_TEMP_S, remove_stale_temps
+
+    for q in remove_stale_temps(path, older_than_s=STALE_TEMP_S):
+        logging.getLogger(__name__).info("removed %s, left by an interrupted write", q)

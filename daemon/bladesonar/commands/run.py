@@ -52,11 +52,6 @@ def load_reference_for(cfg):
     return ref
 
 
-#: Hidden temporary files of an interrupted reference write older than this are removed
-#: at start (younger ones may belong to a 'bladesonar reference --live' writing now).
-STALE_TEMP_S = 60.0
-
-
 def run(args: argparse.Namespace) -> int:
     # Before anything slow (imports of numpy, the config, the broker): a SIGHUP's default
     # action is to terminate, so one sent early (systemctl reload during start) would kill
@@ -90,8 +85,10 @@ def run(args: argparse.Namespace) -> int:
         # EX_CONFIG: the unit's RestartPreventExitStatus stops a restart loop on a bad file
         exc.exit_code = EXIT_CONFIG
         raise
-    from ..io.files import remove_stale_temps
+    from ..io.files import STALE_TEMP_S, remove_stale_temps
 
+    # a kill -9 during a reference write leaves a hidden temporary file; younger ones may
+    # belong to a 'bladesonar reference --live' writing now
     for q in remove_stale_temps(cfg.reference_path, older_than_s=STALE_TEMP_S):
         logging.getLogger(__name__).info("removed %s, left by an interrupted write", q)
     svc = Service(cfg, config_path=args.config, audio_factory=open_audio,

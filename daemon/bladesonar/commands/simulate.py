@@ -222,6 +222,7 @@ def _write_recording(args: argparse.Namespace, cfg: Any, sim: Any, meta: dict[st
     """The WAV and its truth sidecar, rendered chunk by chunk; both appear only when
     complete. Returns the closed writers (their counts)."""
     from ..errors import ConfigError
+    from ..io.files import STALE_TEMP_S, remove_stale_temps
     from ..io.truth import TruthWriter, truth_path
     from ..io.wav import WavWriter
     from ..progress import Progress
@@ -229,6 +230,10 @@ def _write_recording(args: argparse.Namespace, cfg: Any, sim: Any, meta: dict[st
     wav = None
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
+        # what a killed simulate left (a write in progress refreshes its mtime)
+        for q in (*remove_stale_temps(out, older_than_s=STALE_TEMP_S),
+                  *remove_stale_temps(truth_path(out), older_than_s=STALE_TEMP_S)):
+            logging.getLogger(__name__).info("removed %s, left by an interrupted write", q)
         wav = WavWriter(out, cfg.audio.sample_rate)
         truth = TruthWriter(truth_path(out), meta)
     except OSError as exc:

@@ -101,6 +101,13 @@ def read_capped(path: str | Path, limit: int) -> bytes:
         os.close(fd)
 
 
+#: Hidden temporary files of an interrupted write older than this are removed by the next
+#: command that writes the same path (``run`` for its reference, ``reference``,
+#: ``simulate``); younger ones may belong to a write in progress (a write refreshes its
+#: file's mtime; a reference is written in well under a second).
+STALE_TEMP_S = 60.0
+
+
 def temp_prefix(path: Path) -> str:
     """Prefix of the hidden temporary files an atomic write of ``path`` uses."""
     return f".{path.name}."
