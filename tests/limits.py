@@ -4,10 +4,11 @@ The limits are what make a test of hostile input safe and able to fail: a comman
 would blow up is stopped by the kernel (RLIMIT_AS: address space; RLIMIT_CPU: CPU
 seconds) instead of taking the machine down, and the test sees a signal, not exit 2.
 
-The peak RSS is the command's own: a small single-threaded wrapper forks it, sets the
-limits in the child and reports wait4()'s ru_maxrss. (A child forked straight from the
-test process would start its ru_maxrss at the test process's peak, since Linux carries
-the forked memory's high-water mark across exec; and preexec_fn is unsafe from threads.)
+The peak RSS and CPU time are the command's own: a small single-threaded wrapper forks
+it, sets the limits in the child and reports wait4()'s ru_maxrss, ru_utime and ru_stime.
+(A child forked straight from the test process would start its ru_maxrss at the test
+process's peak, since Linux carries the forked memory's high-water mark across exec; and
+preexec_fn is unsafe from threads.)
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ if pid == 0:
     os.execv(sys.argv[4], sys.argv[4:])
 _, status, ru = os.wait4(pid, 0)
 with open(report, "w") as f:
-    f.write(f"{os.waitstatus_to_exitcode(status)} {ru.ru_maxrss}")
+    f.write(f"{os.waitstatus_to_exitcode(status)} {ru.ru_maxrss} {ru.ru_utime + ru.ru_stime}")
 """
 
 
@@ -51,6 +52,7 @@ class Measured:
     stderr: str
     seconds: float
     peak_rss_mib: float
+    cpu_s: float = 0.0
 
 
 def run_limited(args: list[str], *, cwd: str | Path | None = None, env: dict | None = None,
@@ -76,8 +78,9 @@ def run_limited(args: list[str], *, cwd: str | Path | None = None, env: dict | N
                 timer.cancel()
             seconds = time.monotonic() - t0
         if report.exists():
-            rc, maxrss = (int(v) for v in report.read_text().split())
+            code, rss, cpu = report.read_text().split()
+            rc, maxrss, cpu_s = int(code), int(rss), float(cpu)
         else:
-            rc, maxrss = p.returncode, 0
+            rc, maxrss, cpu_s = p.returncode, 0, 0.0
         return Measured(list(args), rc, out.read_text("utf-8", "replace"),
-                        err.read_text("utf-8", "replace"), seconds, maxrss / 1024.0)
+                        err.read_text("utf-8", "replace"), seconds, maxrss / 1024.0, cpu_s)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -16,13 +15,21 @@ from pathlib import Path
 
 import pytest
 
-from limits import RSS_LIMIT_MIB, Measured, run_limited
+from limits import Measured, run_limited
 from loopback import ROOT, bladesonar_cmd
+from nasty import (
+    Job,
+    config_jobs,
+    daemon_jobs,
+    daemon_problems,
+    problems,
+    reference_jobs,
+    scene_jobs,
+    wav_jobs,
+    what,
+)
 
 pytestmark = pytest.mark.slow
-
-#: Longest error line a user may get, characters (paths included).
-MAX_ERROR_LINE = 800
 
 
 @pytest.fixture(scope="module")
@@ -42,41 +49,24 @@ def _env() -> dict:
     return env
 
 
-def _problems(m: Measured, want_rc: int, command: str) -> list[str]:
-    """What is wrong with one run, against the documented behaviour."""
-    bad = []
-    what = " ".join(Path(a).name if "/" in a else a for a in m.args[3:])
-    if m.returncode != want_rc:
-        bad.append(f"{what}: exit {m.returncode}, documented {want_rc}: {m.stderr[-300:]}")
-    if "Traceback" in m.stderr:
-        bad.append(f"{what}: traceback: {m.stderr[-500:]}")
-    errors = [ln for ln in m.stderr.splitlines() if ln.startswith(f"bladesonar {command}: ")]
-    if len(errors) != 1:
-        bad.append(f"{what}: {len(errors)} error lines: {m.stderr[-300:]}")
-    elif len(errors[0]) > MAX_ERROR_LINE:
-        bad.append(f"{what}: error line of {len(errors[0])} characters")
-    if m.peak_rss_mib > RSS_LIMIT_MIB:
-        bad.append(f"{what}: peak RSS {m.peak_rss_mib:.0f} MiB")
-    return bad
-
-
-def _run_all(jobs: list[tuple[list[str], int, str]]) -> tuple[list[str], list[Measured]]:
+def _run_all(jobs: list[Job]) -> tuple[list[str], list[Measured]]:
     env = _env()
     with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as ex:
         results = list(ex.map(lambda j: run_limited(j[0], cwd=ROOT, env=env), jobs))
-    problems = [p for (_, rc, cmd), m in zip(jobs, results, strict=True)
-                for p in _problems(m, rc, cmd)]
-    return problems, results
+    bad = [p for (_, rc, cmd), m in zip(jobs, results, strict=True)
+           for p in problems(m, rc, cmd)]
+    return bad, results
 
 
 def _report(name: str, results: list[Measured]) -> None:
+    """With -s: the corpus's worst figures (two runs at a time; tools/nasty-bounds
+    measures them one at a time)."""
     worst = max(results, key=lambda m: m.peak_rss_mib)
     slow = max(results, key=lambda m: m.seconds)
-    def what(m: Measured) -> str:
-        return " ".join(Path(a).name for a in m.args[3:])
-
+    cpu = max(results, key=lambda m: m.cpu_s)
     print(f"\n{name}: {len(results)} runs; peak RSS {worst.peak_rss_mib:.0f} MiB "
-          f"({what(worst)}), slowest {slow.seconds:.2f} s ({what(slow)})", file=sys.stderr)
+          f"({what(worst)}), slowest {slow.seconds:.2f} s ({what(slow)}), most CPU "
+          f"{cpu.cpu_s:.2f} s ({what(cpu)})", file=sys.stderr)
 
 
 def test_the_seeds_are_valid(corpus, tmp_path):
@@ -94,52 +84,28 @@ def test_the_seeds_are_valid(corpus, tmp_path):
 
 
 def test_bad_references_exit_2_in_one_line(corpus):
-    g = corpus / "good"
-    jobs = [(bladesonar_cmd("analyze", "--reference", str(f), str(g / "good.wav")), 2,
-             "analyze") for f in sorted((corpus / "reference").iterdir())]
-    problems, results = _run_all(jobs)
+    bad, results = _run_all(reference_jobs(corpus))
     _report("references", results)
-    assert not problems, "\n".join(problems)
+    assert not bad, "\n".join(bad)
 
 
 def test_bad_wavs_exit_2_in_one_line(corpus, tmp_path):
-    g = corpus / "good"
-    files = sorted((corpus / "wav").iterdir())
-    jobs = [(bladesonar_cmd("analyze", "--reference", str(g / "good.npz"), str(f)), 2,
-             "analyze") for f in files]
-    jobs += [(bladesonar_cmd("reference", "--direction", "ccw", "--out",
-                             str(tmp_path / f"{f.stem}.npz"), str(f)), 2, "reference")
-             for f in files if f.name in ("sixty-one-minutes.wav", "data-lies-huge.wav",
-                                          "spliced.wav", "zero-channels.wav",
-                                          "huge-list-chunk.wav")]
-    problems, results = _run_all(jobs)
+    bad, results = _run_all(wav_jobs(corpus, tmp_path))
     _report("wavs", results)
-    assert not problems, "\n".join(problems)
+    assert not bad, "\n".join(bad)
     assert list(tmp_path.iterdir()) == []
 
 
 def test_bad_configs_exit_2_and_run_exits_78(corpus):
-    files = sorted((corpus / "config").iterdir())
-    jobs = [(bladesonar_cmd("check-config", "--config", str(f)), 2, "check-config")
-            for f in files]
-    # run reads the config with the same loader: the cases that used to exit 1 or
-    # exhaust memory there (a restart loop under systemd) are enough
-    jobs += [(bladesonar_cmd("run", "--config", str(f), "--seconds", "1"), 78, "run")
-             for f in files if f.stem in ("latin1", "billion-laughs", "deep-flow",
-                                          "oversized", "huge-int", "a-directory",
-                                          "huge-string", "python-object")]
-    problems, results = _run_all(jobs)
+    bad, results = _run_all(config_jobs(corpus))
     _report("configs", results)
-    assert not problems, "\n".join(problems)
+    assert not bad, "\n".join(bad)
 
 
 def test_bad_scenes_exit_2_in_one_line(corpus, tmp_path):
-    jobs = [(bladesonar_cmd("simulate", "--scene", str(f), "--seconds", "1", "--out",
-                            str(tmp_path / "x.wav")), 2, "simulate")
-            for f in sorted((corpus / "scene").iterdir())]
-    problems, results = _run_all(jobs)
+    bad, results = _run_all(scene_jobs(corpus, tmp_path))
     _report("scenes", results)
-    assert not problems, "\n".join(problems)
+    assert not bad, "\n".join(bad)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -147,37 +113,10 @@ def test_the_daemon_publishes_an_invalid_reference_and_keeps_running(corpus, tmp
     """``run`` with a corrupt reference in its state folder: a retained state
     ``reference_invalid`` with the reason, an event, no traceback, and it runs until told
     to stop (exit 0), never exit 1 (systemd would restart it every 5 s for ever)."""
-    names = ["truncated-5.npz", "bitflip-3.npz", "zip-bomb.npz", "npy-huge-shape.npz",
-             "meta-rate-nan.npz", "table-nan.npz", "meta-depends-rate-zero.npz",
-             "checksum-mismatch.npz", "meta-deep-json.npz", "random-bytes.npz"]
-    jobs = []
-    for name in names:
-        state = tmp_path / name / "state"
-        state.mkdir(parents=True)
-        shutil.copy(corpus / "reference" / name, state / "reference.npz")
-        cfg = tmp_path / name / "cfg.yaml"
-        cfg.write_text(json.dumps({"audio": {"backend": "sim"},
-                                   "daemon": {"state_dir": str(state)},
-                                   "sim": {"scene": str(ROOT / "config" / "scenes" /
-                                                        "paper-room.yaml")}}))
-        jobs.append(bladesonar_cmd("run", "--config", str(cfg), "--seconds", "1.5"))
+    jobs = daemon_jobs(corpus, tmp_path)
     env = _env()
     with ThreadPoolExecutor(max_workers=2) as ex:
-        results = list(ex.map(lambda a: run_limited(a, cwd=ROOT, env=env), jobs))
-    bad = []
-    for name, m in zip(names, results, strict=True):
-        msgs = [json.loads(ln) for ln in m.stdout.splitlines() if ln.startswith("{")]
-        # (the first state says "starting": nothing known yet, never a previous run's)
-        states = [x["payload"] for x in msgs if x["topic"].endswith("/state")
-                  and x["payload"]["status"] != "starting"]
-        events = [x["payload"]["kind"] for x in msgs if x["topic"].endswith("/event")]
-        if m.returncode != 0 or "Traceback" in m.stderr:
-            bad.append(f"{name}: exit {m.returncode}: {m.stderr[-400:]}")
-        elif not states or states[0]["status"] != "reference_invalid" \
-                or "reference.npz" not in states[0].get("detail", ""):
-            bad.append(f"{name}: states {states}")
-        elif events != ["reference_invalid"]:
-            bad.append(f"{name}: events {events}")
-        if m.peak_rss_mib > RSS_LIMIT_MIB:
-            bad.append(f"{name}: peak RSS {m.peak_rss_mib:.0f} MiB")
+        results = list(ex.map(lambda j: run_limited(j[1], cwd=ROOT, env=env), jobs))
+    bad = [p for (name, _), m in zip(jobs, results, strict=True)
+           for p in daemon_problems(name, m)]
     assert not bad, "\n".join(bad)
