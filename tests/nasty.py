@@ -80,6 +80,26 @@ def daemon_jobs(corpus: Path, work: Path) -> list[tuple[str, list[str]]]:
     return jobs
 
 
+def long_recording_job(work: Path) -> Job:
+    """``reference`` on a recording of the fan longer than it reads (it uses the first
+    2^20 samples, 23.8 s at 44.1 kHz, with a warning): the most memory a reference can
+    cost. Valid input: exit 0."""
+    from bladesonar import config
+    from bladesonar.io.scene_file import load_scene
+    from bladesonar.io.wav import WavWriter
+    from bladesonar.sim.render import simulate
+    from bladesonar.sim.schedule import Schedule
+
+    x, _ = simulate(load_scene(ROOT / "config" / "scenes" / "paper-room.yaml"),
+                    config.Config(), 25.0, schedule=Schedule.constant(0.45, "ccw"),
+                    snr_db=20.0, seed=7)
+    wav = work / "twenty-five-seconds.wav"
+    with WavWriter(wav, 44100) as w:
+        w.write(x)
+    return (bladesonar_cmd("reference", "--direction", "ccw", "--out",
+                           str(work / "long.npz"), str(wav)), 0, "reference")
+
+
 def what(m: Measured) -> str:
     """A run in a few words: the command and the file names."""
     return " ".join(Path(a).name if "/" in a else a for a in m.args[3:])
@@ -100,6 +120,16 @@ def problems(m: Measured, want_rc: int, command: str) -> list[str]:
         bad.append(f"{w}: error line of {len(errors[0])} characters")
     if m.peak_rss_mib > RSS_LIMIT_MIB:
         bad.append(f"{w}: peak RSS {m.peak_rss_mib:.0f} MiB")
+    return bad
+
+
+def valid_problems(m: Measured) -> list[str]:
+    """A valid input at a limit: exit 0, no traceback, within the memory bound."""
+    bad = []
+    if m.returncode != 0 or "Traceback" in m.stderr:
+        bad.append(f"{what(m)}: exit {m.returncode}: {m.stderr[-400:]}")
+    if m.peak_rss_mib > RSS_LIMIT_MIB:
+        bad.append(f"{what(m)}: peak RSS {m.peak_rss_mib:.0f} MiB")
     return bad
 
 

@@ -64,6 +64,10 @@ class PeriodEstimate:
     periods: float
 
 
+#: Columns (samples or features) per FFT in :func:`doppler_spectrum` (memory, not speed).
+_SPECTRUM_COLUMNS = 64
+
+
 def _fold(nu: np.ndarray | float) -> np.ndarray:
     """Fold frequencies in cycles/pulse into [0, 1/2] (real signals alias symmetrically)."""
     f = np.mod(np.asarray(nu, dtype=np.float64), 1.0)
@@ -89,8 +93,12 @@ def doppler_spectrum(y: np.ndarray, pad: int = 8) -> tuple[np.ndarray, np.ndarra
     """
     n = y.shape[0]
     w = np.hanning(n)[:, None]
-    spec = np.fft.rfft(y * w, n=pad * n, axis=0)
-    s = (spec.real ** 2 + spec.imag ** 2).sum(axis=1)
+    # a block of columns at a time: the padded spectrum of a whole reference recording
+    # (24 s, 780 features) is 38 MiB of complex values, and its squares as much again
+    s = np.zeros(pad * n // 2 + 1)
+    for c in range(0, y.shape[1], _SPECTRUM_COLUMNS):
+        spec = np.fft.rfft(y[:, c:c + _SPECTRUM_COLUMNS] * w, n=pad * n, axis=0)
+        s += (spec.real ** 2 + spec.imag ** 2).sum(axis=1)
     return np.fft.rfftfreq(pad * n), s
 
 
