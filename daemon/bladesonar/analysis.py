@@ -828,8 +828,7 @@ class PulseAnalyzer:
         if tr.x is None or tr.P is None or tr.start_k is None or tr.last_k is None \
                 or tr.last_k - tr.start_k < 2 * st.init_pulses:
             return False
-        floor = 0.5 * self._decide_settings.rate_floor_hz / float(self.ref.meta["rate_hz"]) \
-            * self.ref.cycles_per_pulse
+        floor = self._cycles_per_pulse(0.5 * self._decide_settings.rate_floor_hz)
         sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
         if abs(float(tr.x[1])) + 2.0 * sd >= floor:
             return False
@@ -864,7 +863,12 @@ class PulseAnalyzer:
             return
         t0, v0 = self._anchor
         hz = v0 + 2.0 * c.max_ramp_hz_s * max(t_s - t0, 0.0) + 2.0 * c.rate_floor_hz
-        tr.rate_bound = hz / float(self.ref.meta["rate_hz"]) * self.ref.cycles_per_pulse
+        tr.rate_bound = self._cycles_per_pulse(hz)
+
+    def _cycles_per_pulse(self, hz: float) -> float:
+        """A rotation rate in Hz as the tracker's blade cycles per pulse (by the
+        reference's own rate and cycles per pulse)."""
+        return hz / float(self.ref.meta["rate_hz"]) * self.ref.cycles_per_pulse
 
     def _hold_static(self, k: int, d: Decision) -> bool:
         """While the fan rests, the static estimate is the room as it was while the fan

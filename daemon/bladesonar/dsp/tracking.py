@@ -349,7 +349,8 @@ class Tracker:
     rechecks: int = 0            # tracks given up because another line fit the matches
     syncs: int = 0               # times the track took the follower's line (_follower_takes)
     #: largest |rate| a new line may have (cycles per pulse): the analysis bounds it by
-    #: how fast a fan seen near rest can have sped up since (PulseAnalyzer._bound_rate)
+    #: how fast a fan last published at some speed, or at rest, can have sped up since
+    #: (PulseAnalyzer._bound_rate)
     rate_bound: float = math.inf
     _recent: deque[tuple[int, float, float]] = field(default_factory=deque)
     # (weight, accepted) of _recent
@@ -435,6 +436,11 @@ class Tracker:
         if abs(float(self.fx[2])) > lim:
             self.fx = self.fx.copy()
             self.fx[2] = math.copysign(lim, float(self.fx[2]))
+
+    def _rejects(self, nu: float, s: float, slew: float) -> bool:
+        """Whether an innovation ``nu`` (variance ``s``) lies outside the gate, or further
+        than the fastest line could move (``slew``, cycles)."""
+        return nu * nu > self.settings.gate_sigma ** 2 * s or abs(nu) > max(slew, 0.05)
 
     def _follower_takes(self, z: float, r: float) -> bool:
         """Whether a match the track rejects is one the follower, clearly favoured by the
@@ -607,8 +613,7 @@ class Tracker:
             r = self.r(quality)
             nu, s = innovation(self.x, self.P, z, r)
             slew = st.max_rate + 3.0 * math.sqrt(max(float(self.P[1, 1]), 0.0))
-            if (nu * nu > st.gate_sigma ** 2 * s or abs(nu) > max(slew, 0.05)) \
-                    and self._follower_takes(z, r):
+            if self._rejects(nu, s, slew) and self._follower_takes(z, r):
                 # the constant-rate track lags a ramp the follower is on: it takes the
                 # follower's line instead of counting the match out (six in a row threw
                 # the track away in the middle of spin-ups, and the follower with it)
@@ -617,7 +622,7 @@ class Tracker:
                 self.P = 0.5 * (self.fP[:2, :2] + self.fP[:2, :2].T)
                 self.syncs += 1
                 nu, s = innovation(self.x, self.P, z, r)
-            if nu * nu > st.gate_sigma ** 2 * s or abs(nu) > max(slew, 0.05):
+            if self._rejects(nu, s, slew):
                 outlier = True
                 self.outliers += 1
                 self.outlier_run += 1
@@ -625,7 +630,6 @@ class Tracker:
                     self.x = self.fx = self.fP = None
                     self._init()
             else:
-
                 if self.fx is not None:
                     assert self.fP is not None   # set with fx
                     fnu, fs = innovation(self.fx, self.fP, z, r)
