@@ -16,7 +16,14 @@ from bladesonar import config, imaging
 from bladesonar.errors import ConfigError
 from bladesonar.io.scene_file import load_scene
 from bladesonar.sim.render import simulate
-from bladesonar.sim.schedule import Schedule, Segment, Wobble, direction_of, parse
+from bladesonar.sim.schedule import (
+    Schedule,
+    Segment,
+    Wobble,
+    direction_of,
+    ordinary_use,
+    parse,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = config.Config()
@@ -249,3 +256,24 @@ def test_rendered_truth_with_wobble_matches_the_integral():
                                                abs=1e-9)
         stopped = 2.0 <= p["time_s"] < 2.5
         assert (p["direction"] == "stopped") == stopped
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_a_day_of_ordinary_use_stays_within_what_a_fan_does(seed):
+    """The day tools/bench_day and tools/soak simulate: a seed gives the same day; it
+    covers the time asked; the fan is off or at 0.2-0.6 Hz; no ramp is steeper than the
+    steepest one the tracker is tuned for (tracking.max_ramp_hz_s), so the benchmark
+    measures the pipeline inside its stated envelope."""
+    day = ordinary_use(np.random.default_rng(seed), 3600.0)
+    assert day == ordinary_use(np.random.default_rng(seed), 3600.0)
+    sch = parse(day)
+    assert sum(s.seconds for s in sch.segments) >= 3600.0
+    steepest = config.Config().tracking.max_ramp_hz_s
+    prev = 0.0
+    for s in sch.segments:
+        assert s.rate_hz == 0.0 or 0.2 <= s.rate_hz <= 0.6, s
+        if s.ramp_s > 0:
+            assert s.ramp_s < s.seconds
+            assert abs(s.signed_hz - prev) / s.ramp_s <= steepest + 1e-9, s
+        prev = s.signed_hz
+    assert sch.segments[0] == Segment("ccw", 0.45, 60.0)
