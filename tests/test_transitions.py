@@ -221,8 +221,10 @@ def _d(direction, rate=0.4):
 
 
 def test_state_machine_needs_confirmation_and_fires_between_known_states():
-    """Closed-form walk: 34 pulses/s, confirm 0.5 s = 17 pulses, stop confirm 1 s."""
-    tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=1.0), 34.0)
+    """Closed-form walk: 34 pulses/s, confirm 0.5 s = 17 pulses, stop confirm 1 s (no
+    wait for a reversal to be physically possible: the flips here are instant)."""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=1.0,
+                                        max_reversal_hz_s=0.0), 34.0)
     seq = ["same"] * 30 + ["unknown"] * 10 + ["reversed"] * 16 + ["same"] * 5 \
         + ["reversed"] * 20 + ["stopped"] * 40 + ["same"] * 20
     events, published = [], []
@@ -242,7 +244,7 @@ def test_unknown_answers_pause_the_confirmation_within_twice_its_time():
     confirm at the 7th (17 within 34 pulses); 9, then 30 unknown, then 9 never do (at
     most 9 within any 34 pulses); another known kind in between restarts the count."""
     def run(seq):
-        tr = Transitions(TransitionSettings(confirm_s=0.5), 34.0)
+        tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.0), 34.0)
         fired = []
         for i, d in enumerate(["same"] * 20 + seq):
             fired += [(e.kind, e.pulse) for e in tr.step(i / 34.0, i, _d(d))[1]]
@@ -250,6 +252,47 @@ def test_unknown_answers_pause_the_confirmation_within_twice_its_time():
     assert run(["reversed"] * 10 + ["unknown"] * 5 + ["reversed"] * 7) == [("reversed", 41)]
     assert run(["reversed"] * 9 + ["unknown"] * 30 + ["reversed"] * 9) == []
     assert run(["reversed"] * 10 + ["same"] + ["reversed"] * 16) == []
+
+
+def test_a_reversal_waits_until_a_fan_could_have_made_it():
+    """Closed form, 34 pulses/s, 0.3 Hz/s: 'same' at 0.21 Hz until pulse 99 (2.912 s),
+    then the other way at 0.2 Hz. From 0.21 Hz through zero to 0.2 Hz the other way
+    takes 0.41 / 0.3 = 1.367 s: 18 pulses of the mirror line (0.53 s, a lost track taken
+    up on the mirror of the blade pattern) fire nothing and are published as unknown, and
+    the old direction goes on without an event; held on, the reversal fires at the first
+    pulse from 4.278 s (pulse 146), the count of 17 having been met long before."""
+    def run(n_other, then_same=0):
+        tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.3), 34.0)
+        fired, published = [], []
+        seq = [("same", 0.21)] * 100 + [("reversed", 0.2)] * n_other + \
+            [("same", 0.21)] * then_same
+        for i, (d, r) in enumerate(seq):
+            out, ev = tr.step(i / 34.0, i, _d(d, r))
+            fired += [(e.kind, e.pulse) for e in ev]
+            published.append(out.direction)
+        return fired, published, tr
+    fired, published, tr = run(18, then_same=40)
+    assert fired == [] and tr.known == "+"
+    assert set(published[100:118]) == {"unknown"} and set(published[118:]) == {"same"}
+    fired, published, _ = run(60)
+    assert fired == [("reversed", 146)]
+    assert set(published[100:146]) == {"unknown"} and set(published[146:]) == {"reversed"}
+
+
+def test_the_old_direction_is_bounded_by_rest_and_by_how_fast_a_fan_speeds_up():
+    """Closed form, 10 answers/s, 0.3 Hz/s: 'same' at 0.4 Hz, then at rest ('stopped')
+    until 5.0 s, then a lock claiming 'same' at 0.26 Hz at 5.1 and 5.2 s (a fan at rest
+    0.1 s before can be at 0.03 Hz, at 0.06 Hz 0.2 s after), then 'reversed' at 0.2 Hz:
+    possible from 5.2 + (0.06 + 0.2) / 0.3 = 6.067 s, not from the 0.26 Hz claimed
+    (6.733 s); the count (5 answers) is met by 5.7 s."""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=10.0,
+                                        max_reversal_hz_s=0.3), 10.0)
+    seq = [("same", 0.4)] * 40 + [("stopped", 0.0)] * 11 + [("same", 0.26)] * 2 + \
+        [("reversed", 0.2)] * 20
+    fired = []
+    for i, (d, r) in enumerate(seq):
+        fired += [(e.kind, round(e.t_s, 3)) for e in tr.step(i * 0.1, i, _d(d, r))[1]]
+    assert fired == [("reversed", 6.1)]
 
 
 def _slow_down(tr, t0, t1, r0, slope, pulse=0):

@@ -400,7 +400,8 @@ def decide_settings(cfg: Config) -> DecideSettings:
 
 def transition_settings(cfg: Config) -> TransitionSettings:
     t = cfg.tracking
-    return TransitionSettings(rate_floor_hz=t.rate_floor_hz, confirm_s=t.confirm_s)
+    return TransitionSettings(rate_floor_hz=t.rate_floor_hz, confirm_s=t.confirm_s,
+                              max_reversal_hz_s=t.max_reversal_hz_s)
 
 
 def new_aligner(cfg: Config, ref: Reference) -> PulseAligner:

@@ -133,6 +133,12 @@ class TrackingSettings:
     confirm_s: float = opt(0.5, "a new turning state (start, reversal) must hold this long "
                            "before it is published and its event sent", lo=0.0, hi=60.0,
                            unit="s")
+    max_reversal_hz_s: float = opt(0.3, "fastest change of a fan from one direction "
+                                   "through zero to the other: a reversal claimed sooner "
+                                   "after the last answer of the old direction waits "
+                                   "until it could be true (a track lost and taken up "
+                                   "on the mirror of the blade pattern); 0: no wait",
+                                   lo=0.0, hi=100.0, unit="Hz/s")
     decide_every: int = opt(4, "pulses between decisions (matching and tracking run on every "
                             "pulse): 4 at 34 pulses/s adds at most 0.12 s to an event and "
                             "quarters the cost of the motion meters; 1: every pulse", lo=1,

@@ -19,7 +19,18 @@ evidence has held for a while:
 * ``turning`` one way or the other (``same`` / ``reversed`` relative to the reference):
   a confident track at or above ``rate_floor_hz`` for ``confirm_s``; a *new* direction
   (a start, a reversal) needs ``change_factor`` times the floor, since the end of a
-  spin-down leaves slow, shaky tracks of either sign;
+  spin-down leaves slow, shaky tracks of either sign. A reversal is not taken sooner
+  than a fan could make it: from the old direction's last rate, down through zero and
+  up to the rate of the new direction's first answer, at ``max_reversal_hz_s`` (the
+  first: a track follows a fan speeding up, and its later rates would put the time
+  further off). A track lost on a steadily
+  turning fan and taken up again on the mirror of its blade pattern claims the other
+  direction at once, at about the same rate; it had held for 0.5-0.6 s (a two-hour
+  soak, a steady 0.21 Hz fan), and a lock at the end of a spin-down claimed 0.15 Hz the
+  other way 0.1 s after 0.08 Hz the old way. The old direction's rate is bounded by
+  the same physics from its earlier answers and from rest (a ``stopped`` answer): a new
+  lock near zero once claimed the old direction at 0.26 Hz 0.15 s after the meter saw
+  the fan at rest, and timed from that a true reversal waited 0.7 s more;
 * everything else is ``unknown`` and leaves the last known state in place.
 
 Events fire only on a change of the *known* state: ``started`` (stopped -> turning),
@@ -75,6 +86,9 @@ class TransitionSettings:
     #: coast, 0.03 Hz/s) need not be waited for at its own slope on the way back: that
     #: held stops back 3.4 s after rest
     min_spinup_hz_s: float = 0.05
+    #: the fastest a fan goes from one direction through zero to the other (Hz/s): twice
+    #: the steepest ramp followed (tracking.max_ramp_hz_s); 0: no such wait
+    max_reversal_hz_s: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -120,11 +134,13 @@ class Transitions:
         self._cand: str | None = None        # the last known kind answered
         self._support: deque[tuple[int, int]] = deque()   # (pulse, pulses) for _cand
         self._cand_n = 0
+        self._cand_rate = 0.0                # |rate| of the candidate's first answer (Hz)
         self._zero_by: float | None = None   # a slowing fan would pass zero by then (s)
         self._slowing_hz_s = 0.0
         self._seen: deque[tuple[float, float]] = deque()   # (t, rate) turning, well above
         self._seen_kind: str | None = None
         self._last_turning = -math.inf       # the last turning answer (s)
+        self._known_seen: tuple[float, float] | None = None   # (t, rate), known direction
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
     def step(self, t_s: float, pulse: int, d: Decision, pulses: int = 1
@@ -143,9 +159,14 @@ class Transitions:
         self._watch_slowing(t_s, d)
         if cand in ("+", "-"):
             self._last_turning = float(t_s)
+            if cand == self.known:
+                self._see_known(t_s, _rate(d))
+        elif cand == "stopped" and self.known in ("+", "-"):
+            self._see_known(t_s, 0.0)
         if cand is not None and cand != self._cand:
             self._cand = cand
             self._support.clear()
+            self._cand_rate = _rate(d)
         fired: list[Event] = []
         if cand is None:
             return d, fired
@@ -160,17 +181,26 @@ class Transitions:
         if cand != self.known:
             guard = self._reversal_guard(t_s) \
                 if cand == "stopped" and not d.seen_still else None
-            if self._cand_n < need or guard is not None:
+            soonest = self._soonest_reversal(self._cand_rate) if cand != "stopped" else None
+            if soonest is not None and t_s >= soonest:
+                soonest = None
+            if self._cand_n < need or guard is not None or soonest is not None:
                 what = "a stop" if cand == "stopped" else f"turning {d.direction}"
-                why = (f"confirming {what} ({min(self._cand_n, need)} of {need} pulses)"
-                       if guard is None else
-                       f"confirming a stop: a fan slowing at {self._slowing_hz_s:.3f} Hz/s "
-                       f"may be reversing through zero (until {guard:.1f} s)")
+                if guard is not None:
+                    why = (f"confirming a stop: a fan slowing at {self._slowing_hz_s:.3f} "
+                           f"Hz/s may be reversing through zero (until {guard:.1f} s)")
+                elif soonest is not None and self._known_seen is not None:
+                    why = (f"confirming {what}: {t_s - self._known_seen[0]:.2f} s after "
+                           f"{self._known_seen[1]:.3f} Hz the other way is sooner than a "
+                           f"fan reverses (until {soonest:.1f} s)")
+                else:
+                    why = f"confirming {what} ({min(self._cand_n, need)} of {need} pulses)"
                 return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
                                confidence=min(d.confidence, 0.5),
                                reason=f"{why}: {d.reason}"), fired
             before = self.known
             self.known = cand
+            self._known_seen = (float(t_s), _rate(d)) if cand != "stopped" else None
             if before is not None:
                 kind = ("stopped" if cand == "stopped" else
                         "started" if before == "stopped" else "reversed")
@@ -180,6 +210,25 @@ class Transitions:
                 self.events.append(ev)
         self.known_decision = d
         return d, fired
+
+    def _see_known(self, t_s: float, rate: float) -> None:
+        """Note an answer of the known direction at ``rate`` (0: at rest), bounded by
+        how fast the fan could have sped up since the last one."""
+        st = self.settings
+        if self._known_seen is not None and st.max_reversal_hz_s > 0:
+            t0, r0 = self._known_seen
+            rate = min(rate, r0 + st.max_reversal_hz_s * max(float(t_s) - t0, 0.0))
+        self._known_seen = (float(t_s), rate)
+
+    def _soonest_reversal(self, rate: float) -> float | None:
+        """When a fan last seen turning the known way could be seen turning the other
+        way at ``rate`` (None: no known direction, or no limit)."""
+        st = self.settings
+        if self.known not in ("+", "-") or self._known_seen is None \
+                or not st.max_reversal_hz_s > 0:
+            return None
+        t, old = self._known_seen
+        return t + (old + rate) / st.max_reversal_hz_s
 
     def _watch_slowing(self, t_s: float, d: Decision) -> None:
         """Remember when a fan seen slowing down steadily would reach zero: the line of
@@ -221,6 +270,12 @@ class Transitions:
         until = self._zero_by + visible / comeback + st.meter_lag_s
         until = min(until, self._last_turning + st.reversal_guard_s)
         return until if t_s < until else None
+
+
+def _rate(d: Decision) -> float:
+    """The decision's |rate| (Hz), 0 when it has none."""
+    r = d.rate_hz
+    return abs(float(r)) if r is not None and math.isfinite(r) else 0.0
 
 
 def _slope(points: deque[tuple[float, float]], *, min_span_s: float) -> float | None:
