@@ -260,9 +260,12 @@ def test_a_reversal_waits_until_a_fan_could_have_made_it():
     takes 0.41 / 0.3 = 1.367 s: 18 pulses of the mirror line (0.53 s, a lost track taken
     up on the mirror of the blade pattern) fire nothing and are published as unknown, and
     the old direction goes on without an event; held on, the reversal fires at the first
-    pulse from 4.278 s (pulse 146), the count of 17 having been met long before."""
-    def run(n_other, then_same=0):
-        tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.3), 34.0)
+    pulse from 4.278 s (pulse 146), the count of 17 having been met long before. The wait
+    lasts at most reversal_hold_s of answers the other way: 0.8 s from pulse 100 (2.941 s)
+    ends at 3.741 s, pulse 128, and still outlasts the mirror line."""
+    def run(n_other, then_same=0, hold=10.0):
+        tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.3,
+                                            reversal_hold_s=hold), 34.0)
         fired, published = [], []
         seq = [("same", 0.21)] * 100 + [("reversed", 0.2)] * n_other + \
             [("same", 0.21)] * then_same
@@ -271,12 +274,14 @@ def test_a_reversal_waits_until_a_fan_could_have_made_it():
             fired += [(e.kind, e.pulse) for e in ev]
             published.append(out.direction)
         return fired, published, tr
-    fired, published, tr = run(18, then_same=40)
-    assert fired == [] and tr.known == "+"
-    assert set(published[100:118]) == {"unknown"} and set(published[118:]) == {"same"}
+    for hold in (10.0, 0.8):
+        fired, published, tr = run(18, then_same=40, hold=hold)
+        assert fired == [] and tr.known == "+"
+        assert set(published[100:118]) == {"unknown"} and set(published[118:]) == {"same"}
     fired, published, _ = run(60)
     assert fired == [("reversed", 146)]
     assert set(published[100:146]) == {"unknown"} and set(published[146:]) == {"reversed"}
+    assert run(60, hold=0.8)[0] == [("reversed", 128)]
 
 
 def test_the_old_direction_is_bounded_by_rest_and_by_how_fast_a_fan_speeds_up():

@@ -23,14 +23,15 @@ evidence has held for a while:
   than a fan could make it: from the old direction's last rate, down through zero and
   up to the rate of the new direction's first answer, at ``max_reversal_hz_s`` (the
   first: a track follows a fan speeding up, and its later rates would put the time
-  further off). A track lost on a steadily
-  turning fan and taken up again on the mirror of its blade pattern claims the other
-  direction at once, at about the same rate; it had held for 0.5-0.6 s (a two-hour
-  soak, a steady 0.21 Hz fan), and a lock at the end of a spin-down claimed 0.15 Hz the
-  other way 0.1 s after 0.08 Hz the old way. The old direction's rate is bounded by
-  the same physics from its earlier answers and from rest (a ``stopped`` answer): a new
-  lock near zero once claimed the old direction at 0.26 Hz 0.15 s after the meter saw
-  the fan at rest, and timed from that a true reversal waited 0.7 s more;
+  further off), though for no more than ``reversal_hold_s`` of answers the other way.
+  A track lost on a steadily turning fan and taken up again on the mirror of its blade
+  pattern claims the other direction at once, at about the same rate; it had held for
+  0.5-0.6 s (a two-hour soak, a steady 0.21 Hz fan), and a lock at the end of a
+  spin-down claimed 0.15 Hz the other way 0.1 s after 0.08 Hz the old way. The old
+  direction's rate is bounded by the same physics from its earlier answers and from
+  rest (a ``stopped`` answer): a new lock near zero once claimed the old direction at
+  0.26 Hz 0.15 s after the meter saw the fan at rest, and timed from that a true
+  reversal waited 0.7 s more;
 * everything else is ``unknown`` and leaves the last known state in place.
 
 Events fire only on a change of the *known* state: ``started`` (stopped -> turning),
@@ -89,6 +90,10 @@ class TransitionSettings:
     #: the fastest a fan goes from one direction through zero to the other (Hz/s): twice
     #: the steepest ramp followed (tracking.max_ramp_hz_s); 0: no such wait
     max_reversal_hz_s: float = 0.3
+    #: the longest that wait holds a new direction that keeps being answered (s): a
+    #: mirror-line lock had held 0.5-0.6 s; a fan reversed with no ramp at all (which no
+    #: real fan does, but a test bench might) is reversed for good
+    reversal_hold_s: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -135,6 +140,7 @@ class Transitions:
         self._support: deque[tuple[int, int]] = deque()   # (pulse, pulses) for _cand
         self._cand_n = 0
         self._cand_rate = 0.0                # |rate| of the candidate's first answer (Hz)
+        self._cand_t = 0.0                   # and its time (s)
         self._zero_by: float | None = None   # a slowing fan would pass zero by then (s)
         self._slowing_hz_s = 0.0
         self._seen: deque[tuple[float, float]] = deque()   # (t, rate) turning, well above
@@ -166,7 +172,7 @@ class Transitions:
         if cand is not None and cand != self._cand:
             self._cand = cand
             self._support.clear()
-            self._cand_rate = _rate(d)
+            self._cand_rate, self._cand_t = _rate(d), float(t_s)
         fired: list[Event] = []
         if cand is None:
             return d, fired
@@ -222,13 +228,15 @@ class Transitions:
 
     def _soonest_reversal(self, rate: float) -> float | None:
         """When a fan last seen turning the known way could be seen turning the other
-        way at ``rate`` (None: no known direction, or no limit)."""
+        way at ``rate``, but no later than ``reversal_hold_s`` after the other way was
+        first answered (None: no known direction, or no limit)."""
         st = self.settings
         if self.known not in ("+", "-") or self._known_seen is None \
                 or not st.max_reversal_hz_s > 0:
             return None
         t, old = self._known_seen
-        return t + (old + rate) / st.max_reversal_hz_s
+        return min(t + (old + rate) / st.max_reversal_hz_s,
+                   self._cand_t + st.reversal_hold_s)
 
     def _watch_slowing(self, t_s: float, d: Decision) -> None:
         """Remember when a fan seen slowing down steadily would reach zero: the line of
