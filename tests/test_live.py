@@ -46,13 +46,16 @@ def test_period_by_period_equals_offline_on_the_3d_sample(sample):
     assert est["rotating"] is True and est["reference"] == "r1"
 
 
-def test_lost_periods_advance_the_tracker_clock(sample):
-    """Dropping whole capture periods (a full ring) must not bend the measured rate."""
+@pytest.mark.parametrize("block", [1, 8])
+def test_lost_periods_advance_the_tracker_clock(sample, block):
+    """Dropping whole capture periods (a full ring) must not bend the measured rate,
+    one period at a time or gathered in the daemon's blocks (a jump ends a block)."""
     cfg, ref, probe = sample
     pri = cfg.waveform.pri_samples
-    live = LiveAnalyzer(cfg, ref)
+    live = LiveAnalyzer(cfg, ref, block_pulses=block)
     lost = set(range(150, 160))
     feed(live, probe[:150 * pri], pri)
+    live.flush()
     assert live.analyzer is not None
     before = live.analyzer.tracker.outliers
     est = feed(live, probe, pri, skip=set(range(150)) | lost)
@@ -105,6 +108,18 @@ def test_daemon_and_analyze_send_the_same_events_on_simulated_use(repo_root):
     assert est is not None
     for key in ("direction", "rotation", "relative_rate", "rate_hz", "confidence"):
         assert est.fields()[key] == rows[-1][key], key
+    # the daemon's blocks (daemon.block_pulses): the same events at the same pulses
+    blocked = LiveAnalyzer(cfg, ref, block_pulses=cfg.daemon.block_pulses)
+    assert blocked.block_pulses == 8
+    blocked_events = []
+    for i in range(0, len(x), pri):
+        blocked.push(x[i:i + pri], i)
+        blocked_events += [(e.kind, e.pulse) for e in blocked.take_events()]
+    blocked.flush()
+    blocked_events += [(e.kind, e.pulse) for e in blocked.take_events()]
+    assert blocked_events == off_events
+    final = blocked.estimate()
+    assert final is not None and final.fields() == est.fields()
     score = score_events(truth_events(parse(schedule), 42.0),
                          [(r["event"], r["t_s"]) for r in rows if r["event"]])
     assert [e.kind for e in score.truth] == ["started", "reversed", "stopped"]

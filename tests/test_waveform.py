@@ -83,3 +83,16 @@ def test_pulse_train_chunked_equals_one_shot(pulse, n):
 def test_pulse_train_rejects_negative_arguments():
     with pytest.raises(ValueError, match="start_sample"):
         waveform.pulse_train_chunk(-1, 10, config.Config())
+
+
+def test_i0_agrees_with_scipy_over_the_kaiser_arguments():
+    """The daemon's own I0 (a power series: scipy stays out of the daemon) against
+    scipy.special.i0, the reference implementation, over 0..KAISER_BETA and at the
+    closed forms I0(0) = 1 and I0 even."""
+    from scipy.special import i0 as scipy_i0
+
+    from bladesonar.waveform import KAISER_BETA, i0
+    x = np.linspace(0.0, KAISER_BETA, 20001)
+    np.testing.assert_allclose(i0(x), scipy_i0(x), rtol=4e-15, atol=0.0)
+    assert i0(0.0) == 1.0
+    np.testing.assert_array_equal(i0(-x), i0(x))

@@ -96,12 +96,23 @@ class Estimate:
 
 
 class LiveAnalyzer:
-    """Streaming analysis for the service; one instance per (config, reference)."""
+    """Streaming analysis for the service; one instance per (config, reference).
 
-    def __init__(self, cfg: Config, ref: Reference, *, reference_id: str | None = None) -> None:
+    ``block_pulses``: capture periods gathered before they are analysed together (the
+    daemon's ``daemon.block_pulses``). The numpy work of a block costs about the same
+    for 1 pulse as for 8, so the CPU per pulse falls with it (measured here, tight loop:
+    0.88 ms per pulse one at a time, 0.46 at 4, 0.38 at 8); the answer of a pulse comes
+    that many PRIs later at most. Decisions fall on the same pulses whatever the blocks.
+    """
+
+    def __init__(self, cfg: Config, ref: Reference, *, reference_id: str | None = None,
+                 block_pulses: int = 1) -> None:
         self.cfg, self.ref = cfg, ref
         self.reference_id = reference_id
         self.pri = cfg.waveform.pri_samples
+        self.block_pulses = max(int(block_pulses), 1)
+        self._held: list[np.ndarray] = []      # capture periods gathered, not yet analysed
+        self._held_at: int | None = None       # stream position of the first one
         self.aligner = new_aligner(cfg, ref)
         self.stream = WarmStart(cfg, ref)
         self._next_sample: int | None = None
@@ -126,8 +137,30 @@ class LiveAnalyzer:
         ``start_sample`` is the block's position in the capture stream (counted by the
         audio thread). A jump means samples were lost (an xrun, a full ring): the pulses in
         the gap are counted as lost and the tracker's clock is advanced by them, so that
-        phase rates stay true across the gap.
+        phase rates stay true across the gap. With ``block_pulses`` > 1 the blocks are
+        gathered first (a jump analyses what was gathered before it).
         """
+        if self.block_pulses > 1:
+            if self._held and start_sample is not None and self._held_at is not None \
+                    and start_sample != self._held_at + sum(len(h) for h in self._held):
+                self.flush()            # a jump: what came before it is analysed alone
+            if not self._held:
+                self._held_at = start_sample
+            self._held.append(np.asarray(samples, dtype=np.float64))
+            if sum(len(h) for h in self._held) >= self.block_pulses * self.pri:
+                self.flush()
+            return self.estimate()
+        self._analyse(samples, start_sample)
+        return self.estimate()
+
+    def flush(self) -> None:
+        """Analyse the capture periods gathered so far (``block_pulses`` > 1)."""
+        if self._held:
+            held, at = self._held, self._held_at
+            self._held, self._held_at = [], None
+            self._analyse(held[0] if len(held) == 1 else np.concatenate(held), at)
+
+    def _analyse(self, samples: np.ndarray, start_sample: int | None) -> None:
         if start_sample is not None:
             if self._next_sample is not None and start_sample != self._next_sample:
                 gap = start_sample - self._next_sample
@@ -141,7 +174,6 @@ class LiveAnalyzer:
         if len(got) and self._gaps:
             self._mend_gaps(got)
         self.stream.push(got)
-        return self.estimate()
 
     def _mend_gaps(self, got: AlignedPulses) -> None:
         """Pulses after a gap get the lost pulses added to their number (the tracker's

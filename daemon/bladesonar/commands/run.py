@@ -93,8 +93,9 @@ def run(args: argparse.Namespace) -> int:
         logging.getLogger(__name__).info("removed %s, left by an interrupted write", q)
     svc = Service(cfg, config_path=args.config, audio_factory=open_audio,
                   publisher_factory=make_publisher,
-                  analyzer_factory=lambda c, r: LiveAnalyzer(c, r,
-                                                              reference_id=r.meta.get("id")),
+                  analyzer_factory=lambda c, r: LiveAnalyzer(
+                      c, r, reference_id=r.meta.get("id"),
+                      block_pulses=c.daemon.block_pulses),
                   reference_loader=load_reference_for, notifier=make_notifier(),
                   max_seconds=args.seconds)
     svc.install_signal_handlers()

@@ -31,7 +31,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import fft as sp_fft
+
+from .analytic import analytic_magnitude
 
 
 def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str = "envelope",
@@ -63,16 +64,7 @@ def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str =
         return y
     if kind != "envelope":
         raise ValueError(f"kind must be 'envelope' or 'raw', not {kind!r}")
-    n, L = y.shape
-    nfft = sp_fft.next_fast_len(L + 32)
-    spec = sp_fft.rfft(y, n=nfft, axis=1)
-    # analytic signal: positive frequencies doubled, negative ones zero
-    spec[:, 1:(nfft + 1) // 2] *= 2.0
-    if band < 1.0:
-        spec[:, max(int(band * (nfft // 2)), 1):] = 0.0
-    full = np.zeros((n, nfft), dtype=complex)
-    full[:, :spec.shape[1]] = spec
-    env = np.abs(sp_fft.ifft(full, axis=1)[:, :L])
+    env = analytic_magnitude(y, band)
     if smooth > 1:
         c = np.cumsum(np.pad(env, ((0, 0), (smooth // 2 + 1, smooth - smooth // 2 - 1)),
                              mode="edge"), axis=1)

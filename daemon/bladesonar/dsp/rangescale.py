@@ -15,7 +15,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import fft as sp_fft
+
+from .analytic import analytic_magnitude
 
 #: Largest |s - 1| searched: 5 % is about 28 degrees C.
 MAX_SCALE_DEV = 0.05
@@ -29,14 +30,7 @@ C_PER_DEGREE = 0.6
 
 def envelope(x: np.ndarray, smooth: int = 9) -> np.ndarray:
     """Smoothed magnitude of the analytic signal of one pulse, mean removed."""
-    x = np.asarray(x, dtype=np.float64)
-    n = len(x)
-    nfft = sp_fft.next_fast_len(n + 32)
-    spec = sp_fft.rfft(x, n=nfft)
-    spec[1:(nfft + 1) // 2] *= 2.0
-    full = np.zeros(nfft, dtype=complex)
-    full[:len(spec)] = spec
-    env = np.abs(sp_fft.ifft(full)[:n])
+    env = analytic_magnitude(x)
     if smooth > 1:
         env = np.convolve(env, np.ones(smooth) / smooth, mode="same")
     centred: np.ndarray = env - env.mean()
