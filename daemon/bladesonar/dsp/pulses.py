@@ -323,11 +323,16 @@ class PulseAligner:
 
     def _seg(self, a: int, b: int) -> np.ndarray:
         """Stream samples [a, b) with zeros outside what is buffered; NaN read as 0."""
-        out = np.zeros(b - a)
         lo, hi = max(a, self._offset), min(b, self._end)
-        if hi > lo:
-            out[lo - a:hi - a] = self._buf[lo - self._offset:hi - self._offset]
-        return np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
+        if lo == a and hi == b:
+            out = self._buf[lo - self._offset:hi - self._offset].copy()
+        else:
+            out = np.zeros(b - a)
+            if hi > lo:
+                out[lo - a:hi - a] = self._buf[lo - self._offset:hi - self._offset]
+        if not np.isfinite(out).all():       # rare: checking is cheaper than cleaning
+            np.nan_to_num(out, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+        return out
 
     def _acquire(self, final: bool) -> bool:
         need = self._acq_pris * self.pri + KERNEL_HALF + 1
