@@ -12,6 +12,7 @@ and the reference replaced or forgotten is kept as ``<daemon.reference>.previous
 from __future__ import annotations
 
 import collections
+import ctypes
 import logging
 import threading
 from collections.abc import Callable
@@ -112,10 +113,24 @@ class ReferenceJobs:
             except Exception as exc:  # noqa: BLE001 - a bug must not end the worker
                 log.exception("reference job %s failed (a bug: please report it)", name)
                 result = JobResult(name, error=f"{type(exc).__name__}: {exc}")
+            del fn, args                 # the recording a learn job was given
+            give_back_memory()
             with self._cond:
                 self._done.append(result)
                 self._running = None
                 self._cond.notify_all()
+
+
+def give_back_memory() -> None:
+    """Return the heap a job freed to the system (glibc's malloc_trim; elsewhere nothing).
+    Folding 20 s into a reference peaks near 100 MiB in this thread's malloc arena, and
+    glibc keeps a freed arena's pages: the daemon stayed at 122 MiB after learning."""
+    try:
+        trim = ctypes.CDLL(None).malloc_trim      # the process's own symbols: its libc
+    except (OSError, AttributeError):             # not glibc (musl has no malloc_trim)
+        return
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    trim(0)
 
 
 # -- the jobs (run in the worker thread; pure apart from the file they write) -------------
