@@ -726,8 +726,9 @@ class PulseAnalyzer:
 
     def _streams(self) -> tuple[Any, ...]:
         """The state the static removal of a block moves (for _redo_rest)."""
-        return (self.static.copy(), self.slow.copy(), copy.deepcopy(self.bursts), self._scale_due, self.scale, self.scale_corr,
-                self._rescale, self.seen, self.dropped)
+        return (self.static.copy(), self.slow.copy(), copy.deepcopy(self.bursts),
+                self._scale_due, self.scale, self.scale_corr, self._rescale, self.seen,
+                self.dropped)
 
     def _redo_rest(self, block: AlignedPulses, k: int, saved: tuple[Any, ...], rows: bool
                    ) -> list[dict[str, Any]]:
