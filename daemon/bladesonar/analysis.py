@@ -650,8 +650,8 @@ class PulseAnalyzer:
             fired: list[Event] = []
             changed = False
             if self._since >= every or self.state is None:
-                # counted over all valid pulses, so that the daemon (a pulse at a time)
-                # and analyze (blocks) decide on the same pulses
+                # counted over all valid pulses, so that the daemon (blocks of 8)
+                # and analyze (large blocks) decide on the same pulses
                 d = self.decided = self.decision()
                 state, fired = self.transitions.step(t_s, int(k), d, self._since)
                 self.state = self._reported_rate(state)
