@@ -40,13 +40,12 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from ..errors import InputError
-from ..waveform import i0
+from ..waveform import HALF_TAPS, kernel
 from .gate import Gate
 
-#: Half width (taps) of the windowed-sinc fractional-delay kernel.
-KERNEL_HALF = 16
-_KAISER_BETA = 8.0
-_I0_BETA = float(i0(_KAISER_BETA))
+#: Half width (taps) of the windowed-sinc fractional-delay kernel: the simulator's
+#: (waveform.kernel), which reads a pulse the way it was rendered.
+KERNEL_HALF = HALF_TAPS
 #: Fine grid step used to find the sub-sample peak of the direct coupling, samples.
 _EDGE_GRID = 1.0 / 32.0
 #: Gains of the schedule loop that times a clipped coupling: the edge moves by CLIP_ALPHA
@@ -80,15 +79,6 @@ STATUS_NAMES = {OK: "ok", DROPOUT: "dropout", MISSING: "missing", NAN: "nan",
                 CLIPPED: "clipped", SILENT: "silent", WARMUP: "warmup", BURST: "burst"}
 
 
-def _kernel(t: np.ndarray) -> np.ndarray:
-    """Kaiser-windowed sinc evaluated at offsets ``t`` (samples), zero beyond the half width."""
-    w = np.zeros_like(t, dtype=np.float64)
-    inside = np.abs(t) < KERNEL_HALF
-    u = t[inside] / KERNEL_HALF
-    w[inside] = np.sinc(t[inside]) * i0(_KAISER_BETA * np.sqrt(1.0 - u * u)) / _I0_BETA
-    return w
-
-
 def fractional_taps(frac: np.ndarray) -> np.ndarray:
     """Interpolation taps for reading ``x[i + frac]`` as ``sum_m x[i + m] taps[m]``.
 
@@ -103,11 +93,11 @@ def fractional_taps(frac: np.ndarray) -> np.ndarray:
         Taps for ``m = -KERNEL_HALF + 1 .. KERNEL_HALF``.
     """
     m = np.arange(-KERNEL_HALF + 1, KERNEL_HALF + 1, dtype=np.float64)
-    return _kernel(m[None, :] - np.asarray(frac, dtype=np.float64)[:, None])
+    return kernel(m[None, :] - np.asarray(frac, dtype=np.float64)[:, None])
 
 
 _GRID = np.arange(-1.0, 1.0 + _EDGE_GRID / 2, _EDGE_GRID)
-_GRID_W = _kernel(_GRID[:, None] - np.arange(-KERNEL_HALF, KERNEL_HALF + 1)[None, :])
+_GRID_W = kernel(_GRID[:, None] - np.arange(-KERNEL_HALF, KERNEL_HALF + 1)[None, :])
 
 
 def _crossings(x: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
