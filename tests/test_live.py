@@ -124,3 +124,64 @@ def test_daemon_and_analyze_send_the_same_events_on_simulated_use(repo_root):
                          [(r["event"], r["t_s"]) for r in rows if r["event"]])
     assert [e.kind for e in score.truth] == ["started", "reversed", "stopped"]
     assert not score.false and not score.missed, score.summary()
+
+
+def test_a_changing_rate_is_carried_to_the_present_in_closed_form():
+    """predicted(): rate + change * ahead, for 'changing' answers only, never below the
+    floor, and at most MAX_AHEAD_S ahead."""
+    from bladesonar.dsp.decide import Decision
+    from bladesonar.live import MAX_AHEAD_S, predicted
+
+    def d(state, rate=0.3, change=-0.1, rel=-0.6):
+        return Decision("reversed", "cw", rel, rate, rate * 60, 0.9, "", [],
+                        rate_state=state, rate_change_hz_s=change)
+
+    got = predicted(d("changing"), 0.2, 0.05)
+    assert got.rate_hz == pytest.approx(0.3 - 0.1 * 0.2)
+    assert got.relative_rate == pytest.approx(-0.6 * 0.28 / 0.3)    # sign kept
+    assert got.rpm == pytest.approx(0.28 * 60)
+    assert predicted(d("changing", change=0.1), 0.2, 0.05).rate_hz == pytest.approx(0.32)
+    assert predicted(d("changing"), 10.0, 0.05).rate_hz == pytest.approx(
+        0.3 - 0.1 * MAX_AHEAD_S)
+    # a spin-down predicted through the floor stops at it (a direction is claimed)
+    assert predicted(d("changing", rate=0.06, change=-0.1), 0.3, 0.05).rate_hz == 0.05
+    for same in (d("settled"), d("changing", change=float("nan"))):
+        assert predicted(same, 0.2, 0.05) == same
+    assert predicted(d("changing"), 0.0, 0.05) == d("changing")
+
+
+@pytest.mark.parametrize("block", [1, 8])
+def test_the_published_rate_on_a_ramp_is_the_fans_at_the_time_it_is_published(
+        repo_root, block):
+    """On a spin-up at 0.08 Hz/s the decision's rate is that of a pulse up to a block and
+    a PRI back; the estimate handed to the publisher carries it to the present. Against
+    the simulator's truth at the moment of each estimate, the decided rate lags by about
+    (latency x slope); the published one does not."""
+    from bladesonar.io.scene_file import load_scene
+    from bladesonar.sim.render import simulate
+    from bladesonar.sim.schedule import parse
+
+    cfg = config.Config()
+    scene = load_scene(repo_root / "config" / "scenes" / "paper-room.yaml")
+    xr, _ = simulate(scene, cfg, 12.0, schedule="ccw:0.45:12", seed=1, snr_db=20.0)
+    ref = build_reference(xr, cfg, "ccw")
+    schedule = "ccw:0.25:8,ccw:0.65:14~5"          # 0.25 -> 0.65 Hz over 5 s: 0.08 Hz/s
+    x, _ = simulate(scene, cfg, 22.0, schedule=schedule, seed=3, snr_db=20.0)
+    sch = parse(schedule)
+    live = LiveAnalyzer(cfg, ref, block_pulses=block)
+    pri, fs = cfg.waveform.pri_samples, cfg.audio.sample_rate
+    published, decided = [], []
+    for i in range(0, len(x), pri):
+        est = live.push(x[i:i + pri], i)
+        now = (i + pri) / fs
+        if est is None or est.rate_state != "changing" or not 9.0 < now < 12.5:
+            continue
+        truth = float(sch.rate_at(np.array([now]))[0])
+        published.append(est.rate_hz - truth)
+        decided.append(live.analyzer.state.rate_hz - truth)
+    assert len(published) > 20
+    lag = float(np.median(decided))
+    # the decided rate is behind the fan (spin-up: below it) ...
+    assert lag < -0.002
+    # ... the published one is not, and is within 2 % of 0.45 Hz of it in the median
+    assert abs(float(np.median(published))) < min(abs(lag) / 2, 0.009)

@@ -547,6 +547,9 @@ class PulseAnalyzer:
     #: the state machine (transitions.py), its last output and events not yet taken
     transitions: Transitions = field(init=False)
     state: Decision | None = None
+    #: capture stream sample of the pulse the state was decided on (the live pipeline
+    #: predicts a changing rate from there to the present: LiveAnalyzer.estimate)
+    state_edge: float | None = None
     new_events: list[Event] = field(default_factory=list)
     #: the decision cadence (tracking.decide_every): features waiting for the meters, and
     #: pulses since the last decision
@@ -655,6 +658,7 @@ class PulseAnalyzer:
                 d = self.decided = self.decision()
                 state, fired = self.transitions.step(t_s, int(k), d, self._since)
                 self.state = self._reported_rate(state)
+                self.state_edge = float(edge)
                 self.new_events.extend(fired)
                 self._since = 0
                 changed = self._hold_static(int(k), d)

@@ -9,7 +9,7 @@ it gets here from a warm-up: the running static estimate is primed from the firs
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -22,6 +22,29 @@ from .transitions import Direction, Event
 
 #: Samples beyond the gate that the fractional-shift interpolator reads.
 _INTERP_MARGIN = 32
+#: Longest time a changing rate is predicted ahead, s (the answer is at most a block of
+#: capture periods and the aligner's one PRI behind the present; beyond that something
+#: else held it up, and the prediction is left at this).
+MAX_AHEAD_S = 0.5
+
+
+def predicted(d: Decision, ahead_s: float, floor_hz: float) -> Decision:
+    """A changing rate as it is ``ahead_s`` seconds after the pulse it was decided on:
+    its own rate of change carried forward (the follower's constant-change model), never
+    below ``floor_hz`` (a direction is claimed, so the fan turns at least that fast). A
+    settled rate, and any other answer, is returned as it is. A pulse is analysed once
+    the next pulse's edge is in, and the daemon gathers capture periods in blocks: on a
+    0.1 Hz/s ramp the rate decided on the pulse was 0.005-0.03 Hz behind the fan when it
+    was published."""
+    if d.rate_state != "changing" or d.rate_hz is None or d.rate_change_hz_s is None \
+            or d.relative_rate is None or not ahead_s > 0:
+        return d
+    change = d.rate_change_hz_s
+    if not math.isfinite(change):
+        return d
+    hz = max(d.rate_hz + change * min(ahead_s, MAX_AHEAD_S), floor_hz)
+    rel = d.relative_rate * hz / d.rate_hz if d.rate_hz > 0 else d.relative_rate
+    return replace(d, rate_hz=hz, relative_rate=rel, rpm=hz * 60.0)
 
 
 def _rounded(v: float | None, digits: int) -> float | None:
@@ -197,9 +220,14 @@ class LiveAnalyzer:
         """The decision over the last ``daemon.window_s`` (None while warming up)."""
         if self.analyzer is None or self.analyzer.state is None:
             return None
-        window = round(min(self.cfg.daemon.window_s, self.analyzer.seen / self.cfg.prf_hz), 3)
-        return Estimate.from_decision(self.analyzer.state, window_s=window,
-                                      reference=self.reference_id)
+        an = self.analyzer
+        window = round(min(self.cfg.daemon.window_s, an.seen / self.cfg.prf_hz), 3)
+        d = an.state
+        if an.state_edge is not None:
+            now = self._pushed + sum(len(h) for h in self._held)
+            d = predicted(d, (now - an.state_edge) / self.cfg.audio.sample_rate,
+                          self.cfg.tracking.rate_floor_hz)
+        return Estimate.from_decision(d, window_s=window, reference=self.reference_id)
 
     def fit_sample(self) -> tuple[bool, float] | None:
         """(is the fan moving, mean match quality of the last window) for the reference
