@@ -41,6 +41,39 @@ def test_ring_drops_the_oldest_and_flags_the_next_delivered():
     assert ring.get(0.0) is None
 
 
+def test_ring_batch_waits_for_the_whole_batch_then_takes_it_oldest_first():
+    """get_batch(n): all n once they are queued; on timeout what is there (possibly
+    nothing); never more than the ring holds; a closed ring is not waited for. A real
+    producer thread puts periods; the consumer wakes once for the batch."""
+    import threading
+    import time
+
+    ring = CaptureRing(maxlen=16)
+    assert ring.get_batch(4, 0.0) == []
+    ring.put(RawPeriod(b"a", 0, False))
+    t0 = time.monotonic()
+    got = ring.get_batch(4, 0.05)                 # only one arrives: taken at the timeout
+    assert [g.start_sample for g in got] == [0] and time.monotonic() - t0 >= 0.05
+
+    def produce() -> None:
+        for k in range(1, 9):
+            time.sleep(0.005)
+            ring.put(RawPeriod(bytes([k]), k * 10, False))
+
+    th = threading.Thread(target=produce)
+    th.start()
+    first = ring.get_batch(4, 5.0)
+    second = ring.get_batch(4, 5.0)
+    th.join()
+    assert [g.start_sample for g in first + second] == [10 * k for k in range(1, 9)]
+    for k in range(20):
+        ring.put(RawPeriod(bytes([k]), k, False))
+    assert len(ring.get_batch(100, 0.0)) == 16    # at most the ring's length
+    ring.close()
+    t0 = time.monotonic()
+    assert ring.get_batch(4, 5.0) == [] and time.monotonic() - t0 < 1.0
+
+
 def test_decoder_flags_a_jump_in_the_capture_index():
     dec = BlockDecoder("S16_LE")
     z = encode(np.zeros(4), "S16_LE")
@@ -98,6 +131,31 @@ def test_sim_backend_hands_out_periods_no_sooner_than_a_card_would():
     assert not any(b.discontinuity for b in blocks)
     # a timeout shorter than the wait for the next period returns None, not a block
     assert a.read_pulse(timeout=pri_s / 10) is None
+
+
+def test_sim_backend_hands_out_a_batch_once_its_last_period_is_complete():
+    """read_pulses(n): one wait, until the n-th period is complete, then the n periods in
+    order; the same blocks as n single reads."""
+    from bladesonar.service.sim_audio import SimAudio
+
+    cfg = sim_cfg(realtime=True)
+    pri = cfg.waveform.pri_samples
+    pri_s = pri / cfg.audio.sample_rate
+    clk = FakeClock()
+    a = SimAudio(cfg, clock=clk, sleep=clk.sleep)
+    a.start()
+    got = a.read_pulses(8, timeout=1.0)
+    assert clk.slept == pytest.approx(8 * pri_s, rel=1e-9)
+    assert [b.start_sample for b in got] == [k * pri for k in range(8)]
+    clk2 = FakeClock()
+    single = SimAudio(cfg, clock=clk2, sleep=clk2.sleep)
+    single.start()
+    for b in got:
+        s1 = single.read_pulse(1.0)
+        assert s1 is not None and np.array_equal(s1.samples, b.samples)
+    # a timeout shorter than the batch's wait: what is complete by then
+    part = a.read_pulses(8, timeout=2.5 * pri_s)
+    assert [b.start_sample // pri for b in part] == [8, 9]
 
 
 def test_sim_backend_loses_the_oldest_periods_when_the_consumer_falls_behind():

@@ -177,8 +177,11 @@ def test_the_published_rate_on_a_ramp_is_the_fans_at_the_time_it_is_published(
         if est is None or est.rate_state != "changing" or not 9.0 < now < 12.5:
             continue
         truth = float(sch.rate_at(np.array([now]))[0])
+        assert est.rate_hz is not None and live.analyzer is not None
+        state = live.analyzer.state
+        assert state is not None and state.rate_hz is not None
         published.append(est.rate_hz - truth)
-        decided.append(live.analyzer.state.rate_hz - truth)
+        decided.append(state.rate_hz - truth)
     assert len(published) > 20
     lag = float(np.median(decided))
     # the decided rate is behind the fan (spin-up: below it) ...

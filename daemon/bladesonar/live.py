@@ -163,6 +163,12 @@ class LiveAnalyzer:
         phase rates stay true across the gap. With ``block_pulses`` > 1 the blocks are
         gathered first (a jump analyses what was gathered before it).
         """
+        self.feed(samples, start_sample)
+        return self.estimate()
+
+    def feed(self, samples: np.ndarray, start_sample: int | None = None) -> None:
+        """:meth:`push` without building the estimate (the daemon asks for it once per
+        batch of capture periods)."""
         if self.block_pulses > 1:
             if self._held and start_sample is not None and self._held_at is not None \
                     and start_sample != self._held_at + sum(len(h) for h in self._held):
@@ -172,9 +178,8 @@ class LiveAnalyzer:
             self._held.append(np.asarray(samples, dtype=np.float64))
             if sum(len(h) for h in self._held) >= self.block_pulses * self.pri:
                 self.flush()
-            return self.estimate()
+            return
         self._analyse(samples, start_sample)
-        return self.estimate()
 
     def flush(self) -> None:
         """Analyse the capture periods gathered so far (``block_pulses`` > 1)."""
@@ -218,11 +223,11 @@ class LiveAnalyzer:
 
     def estimate(self) -> Estimate | None:
         """The decision over the last ``daemon.window_s`` (None while warming up)."""
-        if self.analyzer is None or self.analyzer.state is None:
-            return None
         an = self.analyzer
+        if an is None or an.state is None:
+            return None
         window = round(min(self.cfg.daemon.window_s, an.seen / self.cfg.prf_hz), 3)
-        d = an.state
+        d: Decision = an.state
         if an.state_edge is not None:
             now = self._pushed + sum(len(h) for h in self._held)
             d = predicted(d, (now - an.state_edge) / self.cfg.audio.sample_rate,

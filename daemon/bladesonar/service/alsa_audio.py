@@ -210,6 +210,9 @@ class AlsaAudio:
         raw = self._ring.get(timeout)
         return None if raw is None else self._decoder(raw)
 
+    def read_pulses(self, n: int, timeout: float) -> list[PulseBlock]:
+        return [self._decoder(raw) for raw in self._ring.get_batch(n, timeout)]
+
     def stats(self) -> dict[str, int]:
         return {"xruns_playback": self.xruns_playback, "xruns_capture": self.xruns_capture,
                 "ring_overflows": self._ring.overflows, "periods_written": self.periods_written,

@@ -47,6 +47,12 @@ class AudioIO(Protocol):
         """The next PRI of capture, or None if none arrived within ``timeout`` seconds."""
         ...
 
+    def read_pulses(self, n: int, timeout: float) -> list[PulseBlock]:
+        """The next ``n`` PRIs of capture once all have arrived, or those that arrived
+        within ``timeout`` seconds (possibly none): the loop wakes once per block of
+        pulses it analyses together, not once per PRI."""
+        ...
+
     def stats(self) -> dict[str, int]:
         """Health counters: xruns_playback, xruns_capture, ring_overflows,
         periods_written, periods_read, periods_delivered."""
@@ -97,6 +103,7 @@ class CaptureRing:
         self._q: collections.deque[RawPeriod] = collections.deque()
         self._maxlen = int(maxlen)
         self._cond = threading.Condition()
+        self._want = 1                   # periods the consumer waits for (get_batch)
         self.overflows = 0
         self.closed = False
 
@@ -112,7 +119,8 @@ class CaptureRing:
                     item = item._replace(discontinuity=True)
                 del dropped
             self._q.append(item)
-            self._cond.notify()
+            if len(self._q) >= self._want:
+                self._cond.notify()      # a consumer waiting for a batch wakes once
 
     def get(self, timeout: float) -> RawPeriod | None:
         deadline = time.monotonic() + max(float(timeout), 0.0)
@@ -123,6 +131,23 @@ class CaptureRing:
                     return None
                 self._cond.wait(left)
             return self._q.popleft()
+
+    def get_batch(self, n: int, timeout: float) -> list[RawPeriod]:
+        """Up to ``n`` periods, oldest first: waits until ``n`` are queued, the ring is
+        closed, or ``timeout`` seconds pass, then takes what is there (possibly none)."""
+        n = max(1, min(int(n), self._maxlen))
+        deadline = time.monotonic() + max(float(timeout), 0.0)
+        with self._cond:
+            self._want = n
+            try:
+                while len(self._q) < n and not self.closed:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        break
+                    self._cond.wait(left)
+            finally:
+                self._want = 1
+            return [self._q.popleft() for _ in range(min(n, len(self._q)))]
 
     def close(self) -> None:
         """No more periods will come (a waiting consumer still waits out its timeout, so

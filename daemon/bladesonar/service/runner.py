@@ -271,9 +271,12 @@ class Service:
                     self._open_audio()
                     last_pulse_t = self.clock()
                 assert self.audio is not None
-                block = self.audio.read_pulse(timeout=0.5)
+                # analysing: the periods of one analysis block in one wake-up (the loop's
+                # own work per period cost about as much as the analysis of it)
+                batch = self.analyzer.block_pulses if self.analyzer is not None else 1
+                blocks = self.audio.read_pulses(batch, timeout=0.5)
                 now = self.clock()
-                if block is None:
+                if not blocks:
                     if now - last_pulse_t > AUDIO_STALL_S:
                         log.warning("no audio for %.1f s; reopening the audio path",
                                     now - last_pulse_t)
@@ -283,11 +286,13 @@ class Service:
                         last_pulse_t = now
                     continue
                 last_pulse_t = now
-                if self._rec is not None:
+                for block in blocks:
+                    if self._rec is None:        # done (or given up) within the batch
+                        break
                     self._record(block)
                 if self.analyzer is None:
                     # learning a first reference: pulses flow, nothing to estimate yet
-                    self.counters.pulses_processed += 1
+                    self.counters.pulses_processed += len(blocks)
                     self.notifier.watchdog()
                     if now >= next_state:
                         self._publish_unknown()
@@ -297,13 +302,15 @@ class Service:
                         next_stats = now + self.cfg.mqtt.stats_interval_s
                     continue
                 try:
-                    estimate = self.analyzer.push(block.samples, block.start_sample)
+                    for block in blocks:
+                        self.analyzer.feed(block.samples, block.start_sample)
+                        self.counters.pulses_processed += 1
                 except BladesonarError as exc:
                     # e.g. no direct-coupling pulse: speaker muted, wrong device, unplugged
                     self._signal_problem(str(exc))
                     self._pause(SIGNAL_RETRY_S)
                     continue
-                self.counters.pulses_processed += 1
+                estimate = self.analyzer.estimate()
                 if estimate is None:  # not aligned yet (or re-acquiring after a gap)
                     continue
                 self._signal_problem_text = None
@@ -313,7 +320,7 @@ class Service:
                     log.info("running: %s", self._status_line(estimate))
                 self.notifier.watchdog()
                 if self._rec is not None:
-                    self._rec.rotations[estimate.rotation or "other"] += 1
+                    self._rec.rotations[estimate.rotation or "other"] += len(blocks)
                 if now >= self._next_fit:
                     self._next_fit = now + FIT_SAMPLE_S
                     self._sample_fit(now)
@@ -329,8 +336,9 @@ class Service:
                             reference=estimate.reference)
                     self.publisher.publish_state(estimate, status=status,
                                                  detail=None if status == "ok" else detail)
-                    if block.captured_at is not None:
-                        self._latencies.append(self.clock() - block.captured_at)
+                    done_at = blocks[-1].captured_at     # the period that completed it
+                    if done_at is not None:
+                        self._latencies.append(self.clock() - done_at)
                     self.notifier.status(self._status_line(estimate))
                     next_state = now + self.cfg.mqtt.publish_interval_s
                 if now >= next_stats:

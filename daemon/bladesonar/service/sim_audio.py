@@ -91,6 +91,23 @@ class SimAudio:
             x = x + self.sigma * self._noise_rng.standard_normal(len(x))
         return x
 
+    def read_pulses(self, n: int, timeout: float) -> list[PulseBlock]:
+        if self._chunks is None:
+            raise RuntimeError("SimAudio.read_pulses before start()")
+        if self.cfg.sim.realtime and n > 1:
+            # one wait, until the n-th period is complete (as the ALSA ring does)
+            wait = self._t0 + (self._k + n) * self.pri / self.fs - self.clock()
+            if wait > 0:
+                self.sleep(min(wait, max(timeout, 0.0)))
+        out: list[PulseBlock] = []
+        b = self.read_pulse(timeout)
+        while b is not None:
+            out.append(b)
+            if len(out) >= n:
+                break
+            b = self.read_pulse(0.0)
+        return out
+
     def read_pulse(self, timeout: float) -> PulseBlock | None:
         if self._chunks is None:
             raise RuntimeError("SimAudio.read_pulse before start()")
