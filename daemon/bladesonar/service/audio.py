@@ -1,7 +1,8 @@
 """The daemon's audio edge: one interface, two backends (a real ALSA card, the simulator).
 
-The processing loop asks for one pulse repetition interval (PRI) of capture at a time.
-Every block carries its position in the capture stream and a ``discontinuity`` flag:
+The processing loop asks for the pulse repetition intervals (PRIs) of capture of one
+analysis block at a time (``daemon.block_pulses``; one while it only records). Every
+PRI's block carries its position in the capture stream and a ``discontinuity`` flag:
 after an xrun or a dropped period the offset between playback and capture is no longer
 known, so the consumer must re-acquire the direct-coupling edge instead of trusting the
 old range offset. The audio threads only move bytes; conversion to float64 happens here,

@@ -272,7 +272,7 @@ class Service:
                     last_pulse_t = self.clock()
                 assert self.audio is not None
                 # analysing: the periods of one analysis block in one wake-up (the loop's
-                # own work per period cost about as much as the analysis of it)
+                # own work once a period was a quarter of this thread's CPU)
                 batch = self.analyzer.block_pulses if self.analyzer is not None else 1
                 blocks = self.audio.read_pulses(batch, timeout=0.5)
                 now = self.clock()

@@ -94,13 +94,16 @@ class SimAudio:
     def read_pulses(self, n: int, timeout: float) -> list[PulseBlock]:
         if self._chunks is None:
             raise RuntimeError("SimAudio.read_pulses before start()")
+        first = timeout
         if self.cfg.sim.realtime and n > 1:
-            # one wait, until the n-th period is complete (as the ALSA ring does)
+            # one wait, until the n-th period is complete (as the ALSA ring does), then
+            # what is complete by then
             wait = self._t0 + (self._k + n) * self.pri / self.fs - self.clock()
             if wait > 0:
                 self.sleep(min(wait, max(timeout, 0.0)))
+            first = 0.0
         out: list[PulseBlock] = []
-        b = self.read_pulse(timeout)
+        b = self.read_pulse(first)
         while b is not None:
             out.append(b)
             if len(out) >= n:
