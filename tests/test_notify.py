@@ -269,3 +269,48 @@ def test_notify_from_a_subprocess(receiver, use_systemd):
     assert [m for m, _ in messages] == [{"READY": "1", "STATUS": "up"}, {"WATCHDOG": "1"},
                                        {"STATUS": "still up"}, {"STOPPING": "1"}]
     assert {pid for _, pid in messages} == {proc.pid}
+
+
+def test_the_default_sender_never_blocks_on_a_socket_nobody_reads(path_socket, clean_env):
+    """A supervisor that sets NOTIFY_SOCKET but never reads it: the default notifier (the
+    built-in sender for a socket path) drops what does not fit and returns at once; the
+    processing loop goes on. 3000 distinct STATUS lines fill the socket's queue."""
+    import threading
+
+    clean_env.setenv("NOTIFY_SOCKET", path_socket.address)
+    n = make_notifier()
+    assert n.sender_name == "socket"
+    done = threading.Event()
+
+    def spam() -> None:
+        for i in range(3000):
+            n.status(f"line {i}")
+        done.set()
+
+    th = threading.Thread(target=spam, daemon=True)
+    th.start()
+    th.join(10.0)
+    assert done.is_set(), "the notifier blocked on a full socket"
+    dropped = n._send.dropped
+    assert dropped > 0 and n.sent + dropped == 3000
+    # what was queued is intact and in order
+    got = path_socket.pending()
+    assert len(got) == n.sent and got[0]["STATUS"] == "line 0"
+
+
+@pytest.mark.skipif(not HAVE_SYSTEMD_PYTHON, reason="systemd-python not installed")
+def test_libsystemd_sd_notify_blocks_on_a_socket_nobody_reads(path_socket):
+    """Why the built-in sender is the default: libsystemd's sd_notify (systemd-python)
+    waits for room in the socket for as long as it takes. Measured in a subprocess that
+    is given 3 s for 3000 messages to an unread socket: it is still blocked."""
+    code = ("from systemd import daemon\n"
+            "for i in range(3000):\n"
+            "    daemon.notify(f'STATUS=line {i}')\n")
+    env = {**os.environ, "NOTIFY_SOCKET": path_socket.address}
+    proc = subprocess.Popen([sys.executable, "-c", code], env=env)
+    try:
+        with pytest.raises(subprocess.TimeoutExpired):
+            proc.wait(timeout=3.0)
+    finally:
+        proc.kill()
+        proc.wait()

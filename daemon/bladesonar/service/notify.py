@@ -7,13 +7,16 @@ without systemd, the tests) the calls do nothing and cost nothing.
 
 Two senders, same messages:
 
-- ``systemd.daemon.notify`` from systemd-python (the ``systemd`` extra) when it is
-  importable: libsystemd's own ``sd_notify``, which also knows the rarer socket kinds.
-- A tiny built-in datagram sender otherwise. The analysis tools install without the
-  ``systemd`` extra (it needs a compiler and libsystemd-dev), yet a user may still run
-  ``bladesonar run`` under a unit of their own; the protocol is one datagram on an
-  AF_UNIX socket (a path, or an abstract name written with a leading ``@``), documented
-  by systemd as a stable interface, so twenty lines cover it.
+- A tiny built-in datagram sender for the socket kinds systemd gives a service: one
+  datagram on an AF_UNIX socket (a path, or an abstract name written with a leading
+  ``@``), documented by systemd as a stable interface, so twenty lines cover it. It
+  sends without blocking: a full socket drops the message (counted in ``dropped``).
+  libsystemd's ``sd_notify`` blocks instead, for as long as nobody reads the socket
+  (measured: a notify socket that a supervisor set but never read held the processing
+  loop after a few hundred messages, for good); the sonar must not stop for a
+  notification.
+- ``systemd.daemon.notify`` from systemd-python (the ``systemd`` extra) for the rarer
+  socket kinds (``vsock:`` and the like), which only libsystemd speaks.
 
 The processing loop calls ``watchdog()`` on every pulse (~34 per second): it is rate
 limited to one datagram per ``WATCHDOG_USEC / 4`` (systemd's advice is to ping at least
@@ -69,23 +72,29 @@ class SocketSender:
     """The built-in sender: one datagram per message to ``NOTIFY_SOCKET``.
 
     A leading ``@`` names a socket in Linux's abstract namespace (its first byte is NUL
-    on the wire). The socket is opened on first use and kept; sends time out after
-    ``timeout`` seconds so a stuck service manager cannot stall the processing loop.
+    on the wire). The socket is opened on first use and kept, and never blocks: when the
+    receiver's queue is full the message is dropped (``dropped``; the caller sees the
+    error once), so a stuck or absent reader cannot stall the processing loop.
     """
 
-    def __init__(self, address: str, timeout: float = 1.0) -> None:
+    def __init__(self, address: str) -> None:
         if not address or address[0] not in "/@":
             raise ValueError(f"NOTIFY_SOCKET {address!r}: only a socket path or an "
                              "@abstract name is supported without systemd-python")
         self.address = "\0" + address[1:] if address[0] == "@" else address
-        self.timeout = timeout
         self._sock: socket.socket | None = None
+        self.dropped = 0
+        """Messages dropped because the receiver's queue was full."""
 
     def __call__(self, message: str) -> None:
         if self._sock is None:
             self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-            self._sock.settimeout(self.timeout)
-        self._sock.sendto(message.encode("utf-8"), self.address)
+            self._sock.setblocking(False)
+        try:
+            self._sock.sendto(message.encode("utf-8"), self.address)
+        except BlockingIOError:
+            self.dropped += 1
+            raise
 
     def close(self) -> None:
         if self._sock is not None:
@@ -211,8 +220,9 @@ def make_notifier(*, use_systemd: bool | None = None, env: Mapping[str, str] | N
     Parameters
     ----------
     use_systemd
-        None: systemd-python when importable, else the built-in sender. False: always
-        the built-in sender (the tests exercise both). True: systemd-python or nothing.
+        None: the built-in sender for a socket path or @name (what systemd gives), else
+        systemd-python when importable. False: always the built-in sender. True:
+        systemd-python or nothing (the tests exercise both).
     env
         Environment to read ``NOTIFY_SOCKET``, ``WATCHDOG_USEC`` and ``WATCHDOG_PID``
         from (default ``os.environ``). systemd-python's sender reads ``os.environ``
@@ -230,6 +240,8 @@ def make_notifier(*, use_systemd: bool | None = None, env: Mapping[str, str] | N
     if not address:
         return NullNotifier()
     interval = watchdog_interval_s(env)
+    if use_systemd is None and address[0] in "/@":
+        use_systemd = False          # never blocks (module docstring)
     send = _systemd_sender() if use_systemd is not False else None
     if send is not None:
         return Notifier(send, watchdog_interval_s=interval, clock=clock,
