@@ -291,7 +291,7 @@ def test_the_default_sender_never_blocks_on_a_socket_nobody_reads(path_socket, c
     th.start()
     th.join(10.0)
     assert done.is_set(), "the notifier blocked on a full socket"
-    dropped = n._send.dropped
+    dropped = n.dropped
     assert dropped > 0 and n.sent + dropped == 3000
     # what was queued is intact and in order
     got = path_socket.pending()

@@ -140,6 +140,11 @@ class Notifier:
         self.sent = 0
         """Datagrams sent successfully (for tests and stats)."""
 
+    @property
+    def dropped(self) -> int:
+        """Messages the built-in sender dropped on a full socket (0 for other senders)."""
+        return int(getattr(self._send, "dropped", 0))
+
     enabled = True
 
     def _notify(self, *assignments: str) -> bool:
@@ -196,6 +201,7 @@ class NullNotifier:
 
     enabled = False
     sent = 0
+    dropped = 0
 
     def ready(self, status: str = "") -> None:
         pass
