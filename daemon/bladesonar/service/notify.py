@@ -13,7 +13,8 @@ Two senders, same messages:
   sends without blocking: a full socket drops the message (counted in ``dropped``).
   libsystemd's ``sd_notify`` blocks instead, for as long as nobody reads the socket
   (measured: a notify socket that a supervisor set but never read held the processing
-  loop after a few hundred messages, for good); the sonar must not stop for a
+  loop for good once the kernel's queue was full: about ten messages by default,
+  ``net.unix.max_dgram_qlen``); the sonar must not stop for a
   notification.
 - ``systemd.daemon.notify`` from systemd-python (the ``systemd`` extra) for the rarer
   socket kinds (``vsock:`` and the like), which only libsystemd speaks.
