@@ -43,8 +43,9 @@ def test_ring_drops_the_oldest_and_flags_the_next_delivered():
 
 def test_ring_batch_waits_for_the_whole_batch_then_takes_it_oldest_first():
     """get_batch(n): all n once they are queued; on timeout what is there (possibly
-    nothing); never more than the ring holds; a closed ring is not waited for. A real
-    producer thread puts periods; the consumer wakes once for the batch."""
+    nothing); never more than the ring holds; a closed ring hands out what is left at
+    once, and a closed, empty one is waited out (a loop polling a dead device must not
+    spin). A real producer thread puts periods; the consumer wakes once for the batch."""
     import threading
     import time
 
@@ -69,9 +70,14 @@ def test_ring_batch_waits_for_the_whole_batch_then_takes_it_oldest_first():
     for k in range(20):
         ring.put(RawPeriod(bytes([k]), k, False))
     assert len(ring.get_batch(100, 0.0)) == 16    # at most the ring's length
+    ring.put(RawPeriod(b"z", 99, False))
     ring.close()
     t0 = time.monotonic()
-    assert ring.get_batch(4, 5.0) == [] and time.monotonic() - t0 < 1.0
+    got = ring.get_batch(4, 5.0)                 # closed: the last one, at once
+    assert [g.start_sample for g in got] == [99] and time.monotonic() - t0 < 1.0
+    t0 = time.monotonic()
+    assert ring.get_batch(4, 0.05) == [] and time.monotonic() - t0 >= 0.05
+    assert ring.get(0.05) is None and time.monotonic() - t0 >= 0.1
 
 
 def test_decoder_flags_a_jump_in_the_capture_index():

@@ -124,24 +124,20 @@ class CaptureRing:
                 self._cond.notify()      # a consumer waiting for a batch wakes once
 
     def get(self, timeout: float) -> RawPeriod | None:
-        deadline = time.monotonic() + max(float(timeout), 0.0)
-        with self._cond:
-            while not self._q:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return None
-                self._cond.wait(left)
-            return self._q.popleft()
+        got = self.get_batch(1, timeout)
+        return got[0] if got else None
 
     def get_batch(self, n: int, timeout: float) -> list[RawPeriod]:
-        """Up to ``n`` periods, oldest first: waits until ``n`` are queued, the ring is
-        closed, or ``timeout`` seconds pass, then takes what is there (possibly none)."""
+        """Up to ``n`` periods, oldest first: waits until ``n`` are queued, or the ring is
+        closed with some left, or ``timeout`` seconds pass, then takes what is there
+        (possibly none: a closed, empty ring is waited out like an open one, see
+        :meth:`close`)."""
         n = max(1, min(int(n), self._maxlen))
         deadline = time.monotonic() + max(float(timeout), 0.0)
         with self._cond:
             self._want = n
             try:
-                while len(self._q) < n and not self.closed:
+                while len(self._q) < n and not (self.closed and self._q):
                     left = deadline - time.monotonic()
                     if left <= 0:
                         break

@@ -19,7 +19,7 @@ Two senders, same messages:
 - ``systemd.daemon.notify`` from systemd-python (the ``systemd`` extra) for the rarer
   socket kinds (``vsock:`` and the like), which only libsystemd speaks.
 
-The processing loop calls ``watchdog()`` on every pulse (~34 per second): it is rate
+The processing loop calls ``watchdog()`` on every pass (once a block of pulses): it is rate
 limited to one datagram per ``WATCHDOG_USEC / 4`` (systemd's advice is to ping at least
 twice per interval), or per second when systemd set no watchdog. ``status()`` skips a
 line identical to the last one sent. No call ever raises: a failure is logged once at
