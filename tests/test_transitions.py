@@ -86,6 +86,10 @@ def test_transitions_give_each_event_once_and_in_time(scene, reference, name):
     assert not score.missed, score.summary()
     for ev, lat in score.hits:
         assert lat <= LATENCY[ev.kind], (ev, lat)
+    # no direction is published with a rate under the floor (tracking.rate_floor_hz)
+    slow = [(r["t_s"], r["rate_hz"]) for r in rows
+            if r["direction"] in ("same", "reversed") and not r["rate_hz"] >= 0.05]
+    assert not slow, slow[:5]
     # a wrong direction (or a stop while turning) is hardly ever published: an abrupt stop
     # keeps the old direction for about 0.4 s before the short meter sees the rest (0.3 s,
     # plus up to decide_every - 1 pulses until the next decision)

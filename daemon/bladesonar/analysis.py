@@ -949,6 +949,11 @@ class PulseAnalyzer:
             return d
         rel = rate / self.ref.cycles_per_pulse
         hz = abs(rel) * float(self.ref.meta["rate_hz"])
+        if hz < self._decide_settings.rate_floor_hz:
+            # a direction is claimed, so the fan turns at least that fast: the latest rate
+            # has drifted under it (simulated days had up to about a second an hour of 'same'
+            # published at 0.03-0.05 Hz); the decision's own rate stands
+            return d
         return replace(d, relative_rate=rel, rate_hz=hz, rpm=hz * 60.0)
 
     def take_events(self) -> list[Event]:
