@@ -269,9 +269,15 @@ class Transitions:
         ``min_spinup_hz_s`` if that is faster: a reversing fan is driven back up), plus
         the lag of a track locking on it, but never beyond
         ``reversal_guard_s`` after the fan was last seen turning (a stop is due within
-        3 s of rest, and the slope is an estimate)."""
+        3 s of rest, and the slope is an estimate), and not at all for a line that
+        reaches zero more than ``reversal_guard_s`` from now."""
         st = self.settings
         if self._zero_by is None or self.known not in ("+", "-"):
+            return None
+        if self._zero_by > t_s + st.reversal_guard_s:
+            # the line would reach zero only well after now: it does not explain a fan
+            # at rest already (an abrupt stop whose last answers sagged as the track
+            # broke up: 0.016 Hz/s from 0.45 Hz held a stop back by 2.7 s)
             return None
         visible = st.change_factor * st.rate_floor_hz
         comeback = max(self._slowing_hz_s, st.min_spinup_hz_s)
