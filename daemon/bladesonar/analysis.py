@@ -372,6 +372,9 @@ SCALE_EVERY = 1024
 #: 13 % to 9-11 % (the follower's own rate was less noisy, so the matches favoured it
 #: sooner); a lock taken on a ramp still starts with the steepest ramp as uncertainty.
 ACCEL_NOISE = 0.25
+#: Longest a track coasts through weak matches (s; dsp.tracking.Tracker._coasts): a slow
+#: fan's blind half-period, 1.1 s at 0.15 Hz in the paper room, with room to spare.
+COAST_MAX_S = 2.0
 
 
 def tracker_settings(cfg: Config, ref: Reference) -> TrackerSettings:
@@ -388,7 +391,7 @@ def tracker_settings(cfg: Config, ref: Reference) -> TrackerSettings:
                            reacquire_after=t.reacquire_after, init_pulses=t.init_pulses,
                            min_coherence=t.min_coherence,
                            q_accel=(max_accel * ACCEL_NOISE) ** 2 / onset,
-                           max_accel=max_accel)
+                           max_accel=max_accel, coast_max=int(round(COAST_MAX_S * prf)))
 
 
 def decide_settings(cfg: Config) -> DecideSettings:

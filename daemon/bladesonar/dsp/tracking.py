@@ -9,7 +9,8 @@ positive definite in stiff cases (tiny process noise, huge measurement noise, lo
 Outliers: an innovation outside ``gate_sigma`` standard deviations, or larger than the
 slew bound (the phase cannot move further than the largest allowed rate beyond what was
 predicted), is skipped and counted; after ``reacquire_after`` outliers in a row the filter
-re-initialises from the recent matches.
+re-initialises from the recent matches. A track that has shown its line coasts through
+weak matches instead (no blade in view: :meth:`Tracker._coasts`).
 
 Initialisation finds the rate sign robustly by circular regression: over candidate rates
 w within the slew bound, the coherence ``|sum_k q_k exp(2 pi i (z_k - w k))| / sum q_k`` of
@@ -44,6 +45,20 @@ RECHECK_REJECTED = 3
 #: Largest rate change the follower keeps, as a multiple of the steepest ramp
 #: (TrackerSettings.max_accel).
 ACCEL_LIMIT = 2.0
+#: Share of its own blade period a track coasts through weak matches after its last clear
+#: one (Tracker._coasts): the blind part of the paper room's blade period is about half;
+#: a whole period held an abruptly stopped fan's direction 0.7 s past the stop.
+COAST_SHARE = 0.6
+#: Clear matches in a row a track must have accepted before it may coast: a wrong first
+#: lock (a fast fan against a slow reference) rejects the clear ones and is given up by
+#: its weak outliers as before. (Five of the last eight, which also coasts past the clear
+#: matches at the mirror angle a slow fan's blind half often begins with, coasted a
+#: follower whose rate change had the wrong sign through a reversal: a stop and a start
+#: instead of a reversal in a simulated hour.)
+COAST_STREAK = 3
+#: Matches under this quality are the weak ones a track coasts through: with no blade in
+#: view every pulse matches one standing phase at 0.01-0.1.
+COAST_BELOW = 0.1
 
 
 @overload
@@ -295,6 +310,8 @@ class TrackerSettings:
         coasts through that gap on the old rate); 0: no follower.
     max_accel : float
         Largest |acceleration| the follower starts with as uncertainty (cycles/pulse^2).
+    coast_max : int
+        Longest coast through weak matches, pulses (:meth:`Tracker._coasts`); 0: none.
     """
 
     max_rate: float
@@ -307,6 +324,7 @@ class TrackerSettings:
     min_info: float = 0.2
     q_accel: float = 0.0
     max_accel: float = 0.0
+    coast_max: int = 0
 
 
 @dataclass
@@ -338,6 +356,9 @@ class Tracker:
     last_k: int | None = None
     outlier_run: int = 0
     outliers: int = 0
+    clear_k: int | None = None   # pulse of the last clear match the track accepted
+    clear_streak: int = 0        # clear matches accepted since the last clear one rejected
+    coasted: int = 0             # weak matches passed over while coasting (_coasts)
     updates: int = 0
     coherence: float = 0.0
     start_k: int | None = None   # first pulse of the matches the current track began from
@@ -436,6 +457,26 @@ class Tracker:
         if abs(float(self.fx[2])) > lim:
             self.fx = self.fx.copy()
             self.fx[2] = math.copysign(lim, float(self.fx[2]))
+
+    def _coasts(self, k: int, quality: float) -> bool:
+        """Whether a weak match (under ``COAST_BELOW``) at pulse ``k`` is passed over rather
+        than measured. While no blade is in view (the blind part of each blade period in
+        many rooms, half of it in the paper room) every pulse matches one standing phase
+        at a quality of a few hundredths: fed to the filters, such matches pulled the
+        follower's rate down as if the fan were slowing, and six of them off the line
+        gave a right track up in the middle of a slow fan's turn. A track that has
+        accepted its last ``COAST_STREAK`` clear matches (``min_info`` or more) coasts
+        on its prediction instead, for up to ``COAST_SHARE`` of its own blade period
+        after the last clear one (``coast_max`` pulses at most). Beyond that weak
+        matches are measured and counted again, as before, so that a fan stopped with
+        no blade in view is not hidden by a coasting track (docs/dynamics.md)."""
+        st = self.settings
+        if quality >= COAST_BELOW or st.coast_max <= 0 or self.clear_streak < COAST_STREAK:
+            return False
+        assert self.x is not None
+        period = 1.0 / max(abs(float(self.x[1])), 1e-9)
+        return self.clear_k is not None and \
+            k - self.clear_k <= min(COAST_SHARE * period, st.coast_max)
 
     def _rejects(self, nu: float, s: float, slew: float) -> bool:
         """Whether an innovation ``nu`` (variance ``s``) lies outside the gate, or further
@@ -540,6 +581,9 @@ class Tracker:
         self.start_k = int(k[0])
         self.locked_k = int(k[-1])
         self.outlier_run = 0
+        self.clear_k = max((kk for kk, _, q in self._recent if q >= self.settings.min_info),
+                           default=None)
+        self.clear_streak = 0
         self._accepted.clear()
         self._follow_from_track()
         self._follow_from_matches()
@@ -610,37 +654,10 @@ class Tracker:
                 self.fx, self.fP = kalman_predict(self.fx, self.fP, st.q_rate, steps,
                                                   st.q_accel)
             self.last_k = int(k)
-            r = self.r(quality)
-            nu, s = innovation(self.x, self.P, z, r)
-            slew = st.max_rate + 3.0 * math.sqrt(max(float(self.P[1, 1]), 0.0))
-            if self._rejects(nu, s, slew) and self._follower_takes(z, r):
-                # the constant-rate track lags a ramp the follower is on: it takes the
-                # follower's line instead of counting the match out (six in a row threw
-                # the track away in the middle of spin-ups, and the follower with it)
-                assert self.fx is not None and self.fP is not None
-                self.x = np.array([float(self.fx[0]), float(self.fx[1])])
-                self.P = 0.5 * (self.fP[:2, :2] + self.fP[:2, :2].T)
-                self.syncs += 1
-                nu, s = innovation(self.x, self.P, z, r)
-            if self._rejects(nu, s, slew):
-                outlier = True
-                self.outliers += 1
-                self.outlier_run += 1
-                if self.outlier_run >= st.reacquire_after:
-                    self.x = self.fx = self.fP = None
-                    self._init()
+            if self._coasts(int(k), quality):
+                self.coasted += 1
             else:
-                if self.fx is not None:
-                    assert self.fP is not None   # set with fx
-                    fnu, fs = innovation(self.fx, self.fP, z, r)
-                    # log N(fnu; 0, fs) - log N(nu; 0, s), with forgetting
-                    ll = 0.5 * (math.log(s / fs) + nu * nu / s - fnu * fnu / fs)
-                    self.evidence += ll - self.evidence / FOLLOW_MEMORY
-                    self.fx, self.fP = kalman_update(self.fx, self.fP, z, r)
-                    self._limit_accel()
-                self.x, self.P = kalman_update(self.x, self.P, z, r)
-                self.outlier_run = 0
-                self.updates += 1
+                outlier = self._measure(int(k), z, quality)
         if self.x is not None:
             w = max(float(quality), 0.0)
             self._accepted.append((w * w, not outlier))
@@ -652,3 +669,45 @@ class Tracker:
                           math.sqrt(max(float(self.P[1, 1]), 0.0)), True, outlier,
                           self.coherence)
 
+    def _measure(self, k: int, z: float, quality: float) -> bool:
+        """Gate and fold in one match on a track predicted to its pulse; True if it was
+        an outlier."""
+        st = self.settings
+        assert self.x is not None and self.P is not None   # a locked track
+        clear = quality >= st.min_info
+        r = self.r(quality)
+        nu, s = innovation(self.x, self.P, z, r)
+        slew = st.max_rate + 3.0 * math.sqrt(max(float(self.P[1, 1]), 0.0))
+        if self._rejects(nu, s, slew) and self._follower_takes(z, r):
+            # the constant-rate track lags a ramp the follower is on: it takes the
+            # follower's line instead of counting the match out (six in a row threw
+            # the track away in the middle of spin-ups, and the follower with it)
+            assert self.fx is not None and self.fP is not None
+            self.x = np.array([float(self.fx[0]), float(self.fx[1])])
+            self.P = 0.5 * (self.fP[:2, :2] + self.fP[:2, :2].T)
+            self.syncs += 1
+            nu, s = innovation(self.x, self.P, z, r)
+        if self._rejects(nu, s, slew):
+            self.outliers += 1
+            self.outlier_run += 1
+            if clear:
+                self.clear_streak = 0
+            if self.outlier_run >= st.reacquire_after:
+                self.x = self.fx = self.fP = None
+                self._init()
+            return True
+        if self.fx is not None:
+            assert self.fP is not None   # set with fx
+            fnu, fs = innovation(self.fx, self.fP, z, r)
+            # log N(fnu; 0, fs) - log N(nu; 0, s), with forgetting
+            ll = 0.5 * (math.log(s / fs) + nu * nu / s - fnu * fnu / fs)
+            self.evidence += ll - self.evidence / FOLLOW_MEMORY
+            self.fx, self.fP = kalman_update(self.fx, self.fP, z, r)
+            self._limit_accel()
+        self.x, self.P = kalman_update(self.x, self.P, z, r)
+        self.outlier_run = 0
+        self.updates += 1
+        if clear:
+            self.clear_k = k
+            self.clear_streak += 1
+        return False
