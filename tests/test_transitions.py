@@ -387,6 +387,46 @@ def test_a_line_that_reaches_zero_only_much_later_does_not_hold_a_stop():
     assert t is not None and 3.8 - 1e-9 <= t < 4.0, t
 
 
+def test_a_lone_answer_of_the_old_direction_does_not_restart_a_stop():
+    """Quiet after a steady 0.3 Hz, 10 answers/s, one 'same' at 0.13 Hz at 4.3 s (a new
+    lock on a fan at rest): published unknown, it pauses the count of eight quiet answers
+    as an unknown answer would (4.8 s, one answer after 4.7 s without it; restarted, the
+    count would end at 5.1 s); two in a row (4.3, 4.4 s) are the fan turning again: the
+    count restarts after them (4.5 + 0.7 = 5.2 s)."""
+    def run(blips):
+        tr = Transitions(TransitionSettings(reversal_guard_s=10.0), 10.0)
+        for i in range(40):
+            tr.step(i * 0.1, i, _d("same", 0.3))
+        for j in range(30):
+            t = 4.0 + 0.1 * j
+            state, ev = tr.step(t, 40 + j, _d("same", 0.13) if j in blips
+                                else _d("stopped"))
+            if j == min(blips):
+                assert state.direction == "unknown"
+            if ev:
+                return round(t, 3)
+        return None
+    assert run({3}) == 4.8
+    assert run({3, 4}) == 5.2
+
+
+def test_a_lone_answer_of_the_old_direction_does_not_move_the_cap_of_the_wait():
+    """The slowing fan of the capped wait (last turning answer at 4.0 s, stop due at
+    7.0 s), with one 'same' at 0.12 Hz at 5.0 s amid the quiet answers: still 7.0 s."""
+    tr = Transitions(TransitionSettings(), 10.0)
+    for i in range(10):
+        tr.step(i * 0.1, i, _d("same", 0.3))
+    k = _slow_down(tr, 1.0, 4.0, 0.3, -0.05, pulse=10)
+    fired = None
+    for j in range(60):
+        t = 4.1 + 0.1 * j
+        _, ev = tr.step(t, k + j, _d("same", 0.12) if j == 9 else _d("stopped"))
+        if ev:
+            fired = t
+            break
+    assert fired is not None and 7.0 - 1e-9 <= fired < 7.2, fired
+
+
 def test_a_fan_that_holds_its_speed_forgets_the_slowing():
     """Slowing at 0.1 Hz/s from 0.5 to 0.3 Hz, then holding 0.3 Hz for 2.1 s (the slope
     of the last 2 s of answers is 0): a stop after that needs only stop_confirm_s."""

@@ -15,7 +15,9 @@ evidence has held for a while:
   reversal (0.06 Hz/s) is out of the meter's and the track's reach for about two seconds
   on each side of zero. The rate of change is the slope of the recent answers at rates
   the track follows well (three times the floor and up): nearer rest the track lags and
-  flattens, and an estimate from there put the zero seconds late;
+  flattens, and an estimate from there put the zero seconds late. One answer of the old
+  direction amid the stop's confirmation (a new lock on the fan at rest) is published
+  as unknown and changes nothing unless the next decision says so too;
 * ``turning`` one way or the other (``same`` / ``reversed`` relative to the reference):
   a confident track at or above ``rate_floor_hz`` for ``confirm_s``; a *new* direction
   (a start, a reversal) needs ``change_factor`` times the floor, since the end of a
@@ -137,6 +139,7 @@ class Transitions:
         self.known: str | None = None        # confirmed kind: 'stopped', '+', '-'
         self.known_decision: Decision | None = None
         self._cand: str | None = None        # the last known kind answered
+        self._prev_kind: str | None = None   # the kind the previous decision answered
         self._support: deque[tuple[int, int]] = deque()   # (pulse, pulses) for _cand
         self._cand_n = 0
         self._cand_rate = 0.0                # |rate| of the candidate's first answer (Hz)
@@ -162,6 +165,17 @@ class Transitions:
                         reason=f"turning slowly ({d.rate_hz or 0.0:.3f} Hz < {slow:g} Hz "
                                f"needed for a new direction): {d.reason}")
             cand = None
+        prev, self._prev_kind = self._prev_kind, cand
+        if cand in ("+", "-") and cand == self.known and self._cand == "stopped" \
+                and prev != cand:
+            # one answer of the old direction amid a stop's confirmation counts only once
+            # the next decision says so too: new locks on a fan at rest claimed 0.12-0.13
+            # Hz for one decision, twice, and each restarted the confirmation and renewed
+            # the fan's last turning (a stop 3.4 s after rest in a simulated hour)
+            return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
+                           confidence=min(d.confidence, 0.5),
+                           reason=f"a lone answer {d.direction} amid a stop's "
+                                  f"confirmation: {d.reason}"), []
         self._watch_slowing(t_s, d)
         if cand in ("+", "-"):
             self._last_turning = float(t_s)
