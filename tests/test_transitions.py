@@ -427,6 +427,31 @@ def test_a_lone_answer_of_the_old_direction_does_not_move_the_cap_of_the_wait():
     assert fired is not None and 7.0 - 1e-9 <= fired < 7.2, fired
 
 
+def test_past_the_zero_of_its_slowing_line_the_old_direction_needs_a_new_directions_rate():
+    """Slowing at 0.1 Hz/s, 0.3 Hz at 1 s to 0.15 Hz at 2.5 s: the line reaches zero at
+    4.0 s; quiet from 2.6 s, the stop is due at the cap, 2.5 + 3 = 5.5 s. Four 'same'
+    answers at 0.07 Hz at 4.5-4.8 s (a new lock on the fan at rest) are under the 0.1 Hz
+    a new direction needs: published unknown, they neither restart the count nor move
+    the cap (renewed, the stop would wait for 4.0 + 0.1/0.1 + 1.3 = 6.3 s). At 0.12 Hz
+    they are the fan turning again: no stop before 4.9 + 0.7 = 5.6 s."""
+    def run(rate):
+        tr = Transitions(TransitionSettings(), 10.0)
+        for i in range(10):
+            tr.step(i * 0.1, i, _d("same", 0.3))
+        k = _slow_down(tr, 1.0, 2.5, 0.3, -0.1, pulse=10)
+        for j in range(60):
+            t = 2.6 + 0.1 * j
+            slow = 19 <= j <= 22
+            state, ev = tr.step(t, k + j, _d("same", rate) if slow else _d("stopped"))
+            if slow and rate < 0.1:
+                assert state.direction == "unknown" and "0.1 Hz needed" in state.reason
+            if ev:
+                return round(t, 3)
+        return None
+    assert run(0.07) == 5.5
+    assert run(0.12) >= 5.6
+
+
 def test_a_fan_that_holds_its_speed_forgets_the_slowing():
     """Slowing at 0.1 Hz/s from 0.5 to 0.3 Hz, then holding 0.3 Hz for 2.1 s (the slope
     of the last 2 s of answers is 0): a stop after that needs only stop_confirm_s."""

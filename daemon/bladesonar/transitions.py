@@ -21,7 +21,8 @@ evidence has held for a while:
 * ``turning`` one way or the other (``same`` / ``reversed`` relative to the reference):
   a confident track at or above ``rate_floor_hz`` for ``confirm_s``; a *new* direction
   (a start, a reversal) needs ``change_factor`` times the floor, since the end of a
-  spin-down leaves slow, shaky tracks of either sign. A reversal is not taken sooner
+  spin-down leaves slow, shaky tracks of either sign; so does the old direction once
+  the line of a slowing fan has reached zero (new locks on the fan at rest). A reversal is not taken sooner
   than a fan could make it: from the old direction's last rate, down through zero and
   up to the rate of the new direction's first answer, at ``max_reversal_hz_s`` (the
   first: a track follows a fan speeding up, and its later rates would put the time
@@ -158,12 +159,17 @@ class Transitions:
         every few pulses); (the state to publish, events confirmed now) out."""
         cand = _kind(d.direction)
         slow = self.settings.change_factor * self.settings.rate_floor_hz
-        if cand in ("+", "-") and cand != self.known and not (d.rate_hz or 0.0) >= slow:
+        if cand in ("+", "-") and (cand != self.known or self._past_zero(t_s, cand)) \
+                and not (d.rate_hz or 0.0) >= slow:
             # a new direction (a start, a reversal) is taken only from a rate clearly above
-            # the floor: the end of a spin-down leaves slow, shaky tracks of either sign
+            # the floor: the end of a spin-down leaves slow, shaky tracks of either sign.
+            # So is the old one once its slowing line has passed zero: the fan has come
+            # to rest, and a new lock on it claimed 0.07-0.09 Hz the old way 1.3 s later
             d = replace(d, direction=Direction.UNKNOWN.value, rotation=None,
                         reason=f"turning slowly ({d.rate_hz or 0.0:.3f} Hz < {slow:g} Hz "
-                               f"needed for a new direction): {d.reason}")
+                               f"needed for a new direction"
+                               f"{'' if cand != self.known else ' or after a spin-down'}"
+                               f"): {d.reason}")
             cand = None
         prev, self._prev_kind = self._prev_kind, cand
         if cand in ("+", "-") and cand == self.known and self._cand == "stopped" \
@@ -230,6 +236,12 @@ class Transitions:
                 self.events.append(ev)
         self.known_decision = d
         return d, fired
+
+    def _past_zero(self, t_s: float, kind: str) -> bool:
+        """Whether answers of ``kind`` were last seen slowing on a line that has reached
+        zero by ``t_s``."""
+        return self._seen_kind == kind and self._zero_by is not None \
+            and float(t_s) > self._zero_by
 
     def _see_known(self, t_s: float, rate: float) -> None:
         """Note an answer of the known direction at ``rate`` (0: at rest), bounded by
