@@ -296,13 +296,15 @@ def test_a_lost_track_is_not_taken_up_again_faster_than_the_bound():
     assert free.locked and abs(free.rate[0] - 0.13) < 3e-3
 
 
-def _standing_blind(rate, n, seed=7, blind_q=0.03, stop_at=None):
+def _standing_blind(rate, n, seed=7, blind_q=0.03, stop_at=None, mirror=0):
     """Matches of a fan at ``rate`` cycles per pulse whose blade is out of view over the
     second half of each blade period: there every pulse matches one standing phase at a
     quality of a few hundredths, as a room with a weak part of its fingerprint gives (not
     uniform noise: the weak matches form a coherent line that stands still), here 0.25,
     in the visible half (the paper room's weak matches sat near the mirror angle). From
-    pulse ``stop_at`` on the fan stands still with its blade out of view."""
+    pulse ``stop_at`` on the fan stands still with its blade out of view. The first
+    ``mirror`` pulses of each blind half match clearly (0.5, 0.8) at the mirror angle,
+    0.37 cycles on, as the paper room's did."""
     rng = np.random.default_rng(seed)
     k = np.arange(n)
     true = 0.1 + rate * (np.minimum(k, stop_at) if stop_at is not None else k)
@@ -313,6 +315,10 @@ def _standing_blind(rate, n, seed=7, blind_q=0.03, stop_at=None):
         dark |= k >= stop_at
     z[dark] = np.mod(0.25 + 0.01 * rng.standard_normal(dark.sum()), 1.0)
     q[dark] = blind_q
+    onset = np.flatnonzero(dark & ~np.roll(dark, 1))
+    for j in range(mirror):
+        at = onset[onset + j < n] + j
+        z[at], q[at] = np.mod(true[at] + 0.37, 1.0), 0.5 + 0.3 * (j % 2)
     return k, z, q
 
 
@@ -345,6 +351,23 @@ def test_a_track_coasts_through_the_blind_half_of_a_slow_fan():
         (np.median(err), np.percentile(err, 95))
     _, old = errors(0)
     assert np.median(old) > 0.1                     # the test can tell the two apart
+
+
+def test_clear_matches_at_the_mirror_angle_do_not_end_the_coast():
+    """The slow fan above, each blind half beginning with two clear matches at the mirror
+    angle (rejected: they are off the line). Rejected clear matches take one credit each,
+    so the track still coasts and holds its rate after its first lock has settled (three
+    seconds; measured: 1.3 % at the median, 2.6 % at the 95th percentile); had they reset
+    the credit, the track measured the blind halves and lost its line (24 % and 134 %)."""
+    rate = 0.2 * 4 / 34.0
+    k, z, q = _standing_blind(rate, 34 * 12, mirror=2)
+    tr = Tracker(_coasting_settings(int(2 * 34)))
+    states = [tr.update(int(a), float(b), float(c)) for a, b, c in zip(k, z, q, strict=True)]
+    first = next(i for i, s in enumerate(states) if s.locked)
+    err = [abs(s.rate - rate) / rate if s.locked else 1.0 for s in states[first + 34 * 3:]]
+    assert tr.coasted > 34 * 4
+    assert np.median(err) < 0.03 and np.percentile(err, 95) < 0.1, \
+        (np.median(err), np.percentile(err, 95))
 
 
 def test_a_track_that_sees_nothing_clear_stops_coasting_after_part_of_its_period():

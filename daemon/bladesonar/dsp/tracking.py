@@ -49,13 +49,18 @@ ACCEL_LIMIT = 2.0
 #: one (Tracker._coasts): the blind part of the paper room's blade period is about half;
 #: a whole period held an abruptly stopped fan's direction 0.7 s past the stop.
 COAST_SHARE = 0.6
-#: Clear matches in a row a track must have accepted before it may coast: a wrong first
-#: lock (a fast fan against a slow reference) rejects the clear ones and is given up by
-#: its weak outliers as before. (Five of the last eight, which also coasts past the clear
-#: matches at the mirror angle a slow fan's blind half often begins with, coasted a
-#: follower whose rate change had the wrong sign through a reversal: a stop and a start
-#: instead of a reversal in a simulated hour.)
+#: Clear-match credit a track must hold before it may coast: each clear match (quality
+#: min_info or more) it accepts adds one, up to COAST_CREDIT, and each it rejects takes
+#: one away. A wrong first lock (a fast fan against a slow reference) rejects the clear
+#: ones, never coasts and is given up by its weak outliers as before.
 COAST_STREAK = 3
+#: The most credit a track holds: a slow fan's blind half often begins with two clear
+#: matches at the mirror angle, which a track on its line rejects; it still coasts
+#: (resetting the credit there broke a right track up mid-turn: 0.71 s unknown in a
+#: simulated hour). Five of the last eight clear matches, a longer memory, coasted a
+#: follower whose rate change had the wrong sign through a reversal (a stop and a start
+#: instead of a reversal in a simulated hour).
+COAST_CREDIT = 5
 #: Matches under this quality are the weak ones a track coasts through: with no blade in
 #: view every pulse matches one standing phase at 0.01-0.1.
 COAST_BELOW = 0.1
@@ -357,7 +362,7 @@ class Tracker:
     outlier_run: int = 0
     outliers: int = 0
     clear_k: int | None = None   # pulse of the last clear match the track accepted
-    clear_streak: int = 0        # clear matches accepted since the last clear one rejected
+    clear_credit: int = 0        # clear-match credit (COAST_STREAK, COAST_CREDIT)
     coasted: int = 0             # weak matches passed over while coasting (_coasts)
     updates: int = 0
     coherence: float = 0.0
@@ -464,14 +469,15 @@ class Tracker:
         many rooms, half of it in the paper room) every pulse matches one standing phase
         at a quality of a few hundredths: fed to the filters, such matches pulled the
         follower's rate down as if the fan were slowing, and six of them off the line
-        gave a right track up in the middle of a slow fan's turn. A track that has
-        accepted its last ``COAST_STREAK`` clear matches (``min_info`` or more) coasts
-        on its prediction instead, for up to ``COAST_SHARE`` of its own blade period
-        after the last clear one (``coast_max`` pulses at most). Beyond that weak
-        matches are measured and counted again, as before, so that a fan stopped with
-        no blade in view is not hidden by a coasting track (docs/dynamics.md)."""
+        gave a right track up in the middle of a slow fan's turn. A track that holds
+        ``COAST_STREAK`` of clear-match credit (clear matches accepted less those
+        rejected, at most ``COAST_CREDIT``) coasts on its prediction instead, for up
+        to ``COAST_SHARE`` of its own blade period after the last clear one
+        (``coast_max`` pulses at most). Beyond that weak matches are measured and
+        counted again, as before, so that a fan stopped with no blade in view is not
+        hidden by a coasting track (docs/dynamics.md)."""
         st = self.settings
-        if quality >= COAST_BELOW or st.coast_max <= 0 or self.clear_streak < COAST_STREAK:
+        if quality >= COAST_BELOW or st.coast_max <= 0 or self.clear_credit < COAST_STREAK:
             return False
         assert self.x is not None
         period = 1.0 / max(abs(float(self.x[1])), 1e-9)
@@ -583,7 +589,7 @@ class Tracker:
         self.outlier_run = 0
         self.clear_k = max((kk for kk, _, q in self._recent if q >= self.settings.min_info),
                            default=None)
-        self.clear_streak = 0
+        self.clear_credit = 0
         self._accepted.clear()
         self._follow_from_track()
         self._follow_from_matches()
@@ -691,7 +697,7 @@ class Tracker:
             self.outliers += 1
             self.outlier_run += 1
             if clear:
-                self.clear_streak = 0
+                self.clear_credit = max(self.clear_credit - 1, 0)
             if self.outlier_run >= st.reacquire_after:
                 self.x = self.fx = self.fP = None
                 self._init()
@@ -709,5 +715,5 @@ class Tracker:
         self.updates += 1
         if clear:
             self.clear_k = k
-            self.clear_streak += 1
+            self.clear_credit = min(self.clear_credit + 1, COAST_CREDIT)
         return False
