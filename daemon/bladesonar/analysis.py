@@ -44,6 +44,7 @@ from .dsp.pulses import (
     too_few_pulses,
 )
 from .dsp.rangedoppler import range_doppler
+from .dsp.stats import median
 from .dsp.tracking import Tracker, TrackerSettings, TrackState
 from .errors import InputError, ReferenceFileError
 from .transitions import Event, Transitions, TransitionSettings
@@ -276,7 +277,7 @@ def _device_figures(full: AlignedPulses, aligner: PulseAligner, prf: float, fs: 
     # fan's echoes are a few samples, a burst covers the window)
     v = full.valid
     res = x[v] - mean
-    level = np.median(res * res, axis=1)
+    level = median(res * res, axis=1)
     burst = dev.burst_mask(level)
     full.status[np.nonzero(v)[0][burst]] = BURST
     v = full.valid
@@ -1120,8 +1121,8 @@ class WarmStart:
         first = np.concatenate([h.pulses[h.valid] for h in self._held])[:self.warmup]
         if len(first) > 8:
             # bursts of interference must not prime the static estimate
-            res = first - np.median(first, axis=0)
-            first = first[~dev.burst_mask(np.median(res * res, axis=1))]
+            res = first - median(first, axis=0)
+            first = first[~dev.burst_mask(median(res * res, axis=1))]
         self.analyzer = new_analyzer(self.cfg, self.ref, first)
         self.analyzer.uncertain_gaps = self.uncertain_gaps
         rows: list[dict[str, Any]] = []
@@ -1249,7 +1250,7 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
                    dropped_pulses=dropped,
                    window_s=round(min(an.window, an.seen) / cfg.prf_hz, 3),
                    outliers=int(an.tracker.outliers),
-                   clock_ppm=round((float(np.median(np.diff(e))) / pri - 1.0) * 1e6, 1)
+                   clock_ppm=round((float(median(np.diff(e))) / pri - 1.0) * 1e6, 1)
                    if len(e) > 2 else None,
                    events=[dict(kind=ev.kind, t_s=round(ev.t_s, 3), **ev.details())
                            for ev in an.transitions.events],

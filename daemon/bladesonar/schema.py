@@ -13,7 +13,6 @@ a room's walls) stay with the document that has them.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import field
@@ -101,6 +100,8 @@ def check_value(key: str, f: dataclasses.Field[Any], value: Any, lines: Mapping[
         if len(value) > longest:
             fail(f"must be at most {longest} characters long (this one has {len(value)})")
     if md.get("choices") is not None and value not in md["choices"]:
+        import difflib  # only for an invalid config: kept out of the daemon's memory
+
         close = difflib.get_close_matches(str(value), [str(c) for c in md["choices"]], 1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         fail(f"must be one of {', '.join(map(str, md['choices']))}{hint}")
@@ -122,6 +123,8 @@ def check_keys(data: Mapping[Any, Any], known: Iterable[str], prefix: str,
     known = list(known)
     for k in data:
         if k not in known:
+            import difflib
+
             close = difflib.get_close_matches(str(k), known, 1)
             hint = f"; did you mean {prefix}{close[0]}?" if close else ""
             raise ConfigError(f"{prefix}{k}", data[k],

@@ -114,7 +114,10 @@ def alias_rates(rate: float, fracs: list[Fraction], *, max_rate: float, min_rate
     """Candidate rates: ``rate + j / q`` for the denominators q of ``fracs`` and their
     multiples (the true period may be a multiple of the one tracked), within
     ``min_rate <= |w| <= max_rate``; the tracked rate is first."""
-    sh = np.unique(np.concatenate([_shifts(f.denominator, max_q) for f in fracs]))
+    # sorted and unique as np.unique gives them, which imports numpy.ma (1.9 MiB resident
+    # in the daemon) for its check of a masked array
+    sh = np.array(sorted({float(s) for f in fracs for s in _shifts(f.denominator, max_q)}),
+                  dtype=np.float64)
     w = float(rate) + sh
     w = w[(np.abs(w) >= min_rate) & (np.abs(w) <= max_rate)]
     return np.concatenate([[float(rate)], w])

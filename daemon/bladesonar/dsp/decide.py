@@ -51,10 +51,11 @@ class MotionMeter:
             raise ValueError(f"window must exceed max_lag + 1 pulses, got window={window!r}, "
                              f"max_lag={max_lag!r}")
         self.window, self.max_lag = int(window), int(max_lag)
-        self._x = np.zeros((self.max_lag + 1, length))    # last pulses, ring
         self._d = np.zeros((self.window, self.max_lag))   # lag energies per pulse, ring
         self._e = np.zeros(self.window)                   # |x|^2 per pulse, ring
         self._s = np.zeros((self.window, length))         # the pulses themselves, ring
+        # (the lags' history, the last max_lag pulses, is the newest end of this ring:
+        # window > max_lag + 1)
         self._n = 0
 
     def update(self, x: np.ndarray) -> None:
@@ -68,9 +69,10 @@ class MotionMeter:
         n = len(xs)
         if n == 0:
             return
-        M, ring = self.max_lag, self.max_lag + 1
+        M = self.max_lag
         h = min(self._n, M)                              # history pulses available
-        hist = self._x[(self._n - h + np.arange(h)) % ring] if h else np.zeros((0, xs.shape[1]))
+        hist = self._s[(self._n - h + np.arange(h)) % self.window] if h else \
+            np.zeros((0, xs.shape[1]))
         ext = np.vstack([hist, xs])                      # (h + n, L), in time order
         e_ext = np.einsum("ij,ij->i", ext, ext)
         gram = ext @ xs.T                                # (h + n, n)
@@ -83,8 +85,6 @@ class MotionMeter:
             self._d[j] = row
             self._e[j] = e_ext[pos]
             self._s[j] = xs[i]
-        for i in range(max(0, n - ring), n):
-            self._x[(self._n + i) % ring] = xs[i]
         self._n += n
 
     @property

@@ -18,6 +18,8 @@ import math
 
 import numpy as np
 
+from .stats import median
+
 #: Segments of the late window the tail's decay is measured over.
 TAIL_SEGMENTS = 8
 #: A segment counts as tail when its power is this many times the mean pulse's noise.
@@ -68,7 +70,7 @@ def tail_rt60(mean_pulse: np.ndarray, noise_var: float, fs: float, start: int = 
     if L - a < 4 * TAIL_SEGMENTS or not fs > 0:
         return 0.0
     seg = np.array_split(m[a:] ** 2, TAIL_SEGMENTS)
-    p = np.array([float(np.median(s)) for s in seg])
+    p = np.array([float(median(s)) for s in seg])
     centre = np.array([a + (i + 0.5) * (L - a) / TAIL_SEGMENTS for i in range(TAIL_SEGMENTS)])
     # the median of a squared Gaussian is 0.455 of its mean
     floor = 0.455 * max(float(noise_var), 0.0)
@@ -130,8 +132,8 @@ def tail_from_buildup(pulses: np.ndarray, mean_pulse: np.ndarray, pri: int, fs: 
     steady = steady[np.isfinite(steady)]
     if len(steady) < 8:
         return 0.0, 0
-    mid = float(np.median(steady))
-    scatter = 1.4826 * float(np.median(np.abs(steady - mid)))
+    mid = float(median(steady))
+    scatter = 1.4826 * float(median(np.abs(steady - mid)))
     short = p - mid
     # the first usable pulse projects on itself (always "short"): the run counts from the
     # next one, and only a run of at least two more shows a build-up
@@ -184,7 +186,7 @@ def burst_mask(energy: np.ndarray, ratio: float = BURST_RATIO) -> np.ndarray:
     e = np.asarray(energy, dtype=np.float64)
     if len(e) == 0:
         return np.zeros(0, bool)
-    med = float(np.median(e))
+    med = float(median(e))
     return e > ratio * med if med > 0 else np.zeros(len(e), bool)
 
 
@@ -210,5 +212,5 @@ class BurstGate:
         self._hist[self._n % len(self._hist)] = energy
         self._n += 1
         if self._n % 8 == 0:
-            self._typical = float(np.median(self._hist[:min(self._n, len(self._hist))]))
+            self._typical = float(median(self._hist[:min(self._n, len(self._hist))]))
         return False

@@ -13,6 +13,8 @@ from typing import overload
 
 import numpy as np
 
+from .stats import median
+
 #: Samples kept free at the end of a PRI: the next pulse's direct coupling and the
 #: fractional-delay interpolation kernel must not leak into the gate.
 END_GUARD_SAMPLES = 24
@@ -150,7 +152,7 @@ def find_target_range(rd_power: np.ndarray, fs: float, c: float, *, dc_bins: int
     if first >= n_del:
         raise ValueError(f"skip_m={skip_m!r} is beyond the delays given ({n_del} delays)")
     seg = moving[first:]
-    floor = float(np.median(seg))
+    floor = float(median(seg))
     peak = float(seg.max())
     if not peak > floor:
         return delay_to_range(first, c, fs)

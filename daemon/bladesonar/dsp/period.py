@@ -34,6 +34,7 @@ import numpy as np
 
 from ..errors import EstimationError
 from .aliasing import folded_angles
+from .stats import median
 
 
 @dataclass(frozen=True)
@@ -236,7 +237,7 @@ class DopplerLines:
         n = y.shape[0]
         nu, s = doppler_spectrum(y, pad)
         dc = nu < 2.0 / n
-        floor = float(np.median(s[~dc])) + 1e-300
+        floor = float(median(s[~dc])) + 1e-300
         excess = np.where(dc, 0.0, np.maximum(s - floor, 0.0))
         return cls(nu=nu, power=s, pad=pad, dc=dc, floor=floor, excess=excess,
                    line_energy=float(excess.sum()) + 1e-300,
@@ -368,7 +369,8 @@ def _fundamental(candidates: np.ndarray, lines: DopplerLines, folds: PhaseFolds,
     the fold at r repeats m times."""
     scores = np.array([lines.explained(r) for r in candidates])
     best = float(scores.max())
-    ok = np.unique(np.round(candidates[scores >= explain_tol * best], 5))
+    ok = np.array(sorted(set(np.round(candidates[scores >= explain_tol * best], 5).tolist())),
+                  dtype=np.float64)   # np.unique's values, without its import of numpy.ma
     disp = np.array([folds.dispersion(r) for r in ok])
     ok = ok[disp <= 1.2 * disp.min() + 0.02]
     rough = np.array([folds.roughness(r) for r in ok])

@@ -42,6 +42,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from ..errors import InputError
 from ..waveform import HALF_TAPS, kernel
 from .gate import Gate
+from .stats import median
 
 #: Half width (taps) of the windowed-sinc fractional-delay kernel: the simulator's
 #: (waveform.kernel), which reads a pulse the way it was rendered.
@@ -340,7 +341,7 @@ class PulseAligner:
         for k in range(n):
             fold += np.abs(np.nan_to_num(self._buf[k * self.pri:(k + 1) * self.pri]))
         p = int(np.argmax(fold))
-        typical = float(np.median(fold)) + 1e-300
+        typical = float(median(fold)) + 1e-300
         if fold[p] < 8.0 * typical:
             if not final and self._lead_in < self.max_lead_in:
                 # capture usually starts before the first played pulse comes back (device
