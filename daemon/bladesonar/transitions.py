@@ -22,11 +22,11 @@ evidence has held for a while:
   a confident track at or above ``rate_floor_hz`` for ``confirm_s``; a *new* direction
   (a start, a reversal) needs ``change_factor`` times the floor, since the end of a
   spin-down leaves slow, shaky tracks of either sign; so does the old direction once
-  the line of a slowing fan has reached zero (new locks on the fan at rest). A reversal is not taken sooner
-  than a fan could make it: from the old direction's last rate, down through zero and
-  up to the rate of the new direction's first answer, at ``max_reversal_hz_s`` (the
-  first: a track follows a fan speeding up, and its later rates would put the time
-  further off), though for no more than ``reversal_hold_s`` of answers the other way.
+  the line of a slowing fan has reached zero (new locks on the fan at rest). A reversal
+  is not taken sooner than a fan could make it: from the old direction's last rate,
+  down through zero and up to the rate of the new direction's first answer, at
+  ``max_reversal_hz_s`` (the first: a track follows a fan speeding up, and its later
+  rates would put the time further off), though for no more than ``reversal_hold_s`` of answers the other way.
   A track lost on a steadily turning fan and taken up again on the mirror of its blade
   pattern claims the other direction at once, at about the same rate; it had held for
   0.5-0.6 s (a two-hour soak, a steady 0.21 Hz fan), and a lock at the end of a

@@ -9,11 +9,14 @@ data hold one) for plain arrays, so it gives the same values bit for bit.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 
-def median(a: np.ndarray, axis: int | None = None) -> np.ndarray | np.floating:
-    """``np.median(a, axis=axis)`` for a plain array (no ``out``, no ``keepdims``)."""
+def median(a: np.ndarray, axis: int | None = None) -> Any:
+    """``np.median(a, axis=axis)`` for a plain array (no ``out``, no ``keepdims``): a
+    numpy scalar without an axis, an array with one, as numpy's."""
     a = np.asarray(a)
     if axis is None:
         a, axis = a.ravel(), 0
