@@ -26,8 +26,8 @@ evidence has held for a while:
   is not taken sooner than a fan could make it: from the old direction's last rate,
   down through zero and up to the rate of the new direction's first answer, at
   ``max_reversal_hz_s`` (the first: a track follows a fan speeding up, and its later
-  rates would put the time further off), though for no more than ``reversal_hold_s`` of answers the other way.
-  A track lost on a steadily turning fan and taken up again on the mirror of its blade
+  rates would put the time further off), though for no more than ``reversal_hold_s``
+  of answers the other way. A track lost on a steadily turning fan and taken up again on the mirror of its blade
   pattern claims the other direction at once, at about the same rate; it had held for
   0.5-0.6 s (a two-hour soak, a steady 0.21 Hz fan), and a lock at the end of a
   spin-down claimed 0.15 Hz the other way 0.1 s after 0.08 Hz the old way. The old
