@@ -21,19 +21,19 @@ evidence has held for a while:
 * ``turning`` one way or the other (``same`` / ``reversed`` relative to the reference):
   a confident track at or above ``rate_floor_hz`` for ``confirm_s``; a *new* direction
   (a start, a reversal) needs ``change_factor`` times the floor, since the end of a
-  spin-down leaves slow, shaky tracks of either sign; so does the old direction once
-  the line of a slowing fan has reached zero (new locks on the fan at rest). A reversal
-  is not taken sooner than a fan could make it: from the old direction's last rate,
-  down through zero and up to the rate of the new direction's first answer, at
+  spin-down leaves slow, shaky tracks of either sign; so does the old direction once the
+  line of a slowing fan has reached zero (new locks on the fan at rest). A reversal is
+  not taken sooner than a fan could make it: from the old direction's last rate, down
+  through zero and up to the rate of the new direction's first answer, at
   ``max_reversal_hz_s`` (the first: a track follows a fan speeding up, and its later
-  rates would put the time further off), though for no more than ``reversal_hold_s``
-  of answers the other way. A track lost on a steadily turning fan and taken up again on the mirror of its blade
-  pattern claims the other direction at once, at about the same rate; it had held for
-  0.5-0.6 s (a two-hour soak, a steady 0.21 Hz fan), and a lock at the end of a
-  spin-down claimed 0.15 Hz the other way 0.1 s after 0.08 Hz the old way. The old
-  direction's rate is bounded by the same physics from its earlier answers and from
-  rest (a ``stopped`` answer): a new lock near zero once claimed the old direction at
-  0.26 Hz 0.15 s after the meter saw the fan at rest, and timed from that a true
+  rates would put the time further off), though for no more than ``reversal_hold_s`` of
+  answers the other way. A track lost on a steadily turning fan and taken up again on
+  the mirror of its blade pattern claims the other direction at once, at about the same
+  rate; it had held for 0.5-0.6 s (a two-hour soak, a steady 0.21 Hz fan), and a lock at
+  the end of a spin-down claimed 0.15 Hz the other way 0.1 s after 0.08 Hz the old way.
+  The old direction's rate is bounded by the same physics from its earlier answers and
+  from rest (a ``stopped`` answer): a new lock near zero once claimed the old direction
+  at 0.26 Hz 0.15 s after the meter saw the fan at rest, and timed from that a true
   reversal waited 0.7 s more;
 * everything else is ``unknown`` and leaves the last known state in place.
 
