@@ -269,15 +269,9 @@ class Transitions:
         the recent answers at rates the track follows well (three times the floor and
         up), extrapolated; such answers that no longer fall (the fan held or regained its
         speed) forget it. Slower answers change nothing: there the track lags and
-        flattens (it read 0.13 Hz for a second while the fan went from 0.08 Hz to 0.04);
-        nor do answers the other way before that way is confirmed."""
+        flattens (it read 0.13 Hz for a second while the fan went from 0.08 Hz to 0.04)."""
         kind = _kind(d.direction)
         if kind not in ("+", "-") or d.rate_hz is None or not math.isfinite(d.rate_hz):
-            return
-        if self.known in ("+", "-") and kind != self.known:
-            # the other way, not confirmed yet: a sign that the fan may be reversing, not
-            # a reason to forget its slowing (one early answer the other way dropped the
-            # wait, and a reversal at 0.11 Hz/s read as a stop and a start)
             return
         t, rate = float(t_s), float(d.rate_hz)
         if kind != self._seen_kind:
