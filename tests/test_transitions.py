@@ -452,6 +452,29 @@ def test_past_the_zero_of_its_slowing_line_the_old_direction_needs_a_new_directi
     assert run(0.12) >= 5.6
 
 
+def test_an_early_answer_the_other_way_neither_ends_the_wait_nor_renews_its_cap():
+    """A fan slowing at 0.1 Hz/s from 0.3 Hz at 1 s to 0.15 Hz at 2.5 s, quiet from 2.6
+    s, with one 'reversed' at 0.14 Hz at 3.5 s: too soon for a fan to have reversed, it
+    is not taken. It is a sign of a reversal, not a reason to drop the wait (dropped, the
+    stop came at 3.6 + 0.7 = 4.3 s); and it is no answer of the known direction, so the
+    wait is capped 3 s after the last of those, at 2.5 + 3 = 5.5 s (renewed, at 6.5 s:
+    a new lock on the demo's fan at rest held its stop 3.2 s after rest that way)."""
+    tr = Transitions(TransitionSettings(), 10.0)
+    for i in range(10):
+        tr.step(i * 0.1, i, _d("same", 0.3))
+    k = _slow_down(tr, 1.0, 2.5, 0.3, -0.1, pulse=10)
+    fired = None
+    for j in range(40):
+        t = 2.6 + 0.1 * j
+        state, ev = tr.step(t, k + j, _d("reversed", 0.14) if j == 9 else _d("stopped"))
+        assert state.direction == "unknown" or ev
+        if ev:
+            fired = round(t, 3)
+            break
+    assert fired == 5.5, fired
+    assert [e.kind for e in tr.events] == ["stopped"]
+
+
 def test_a_fan_that_holds_its_speed_forgets_the_slowing():
     """Slowing at 0.1 Hz/s from 0.5 to 0.3 Hz, then holding 0.3 Hz for 2.1 s (the slope
     of the last 2 s of answers is 0): a stop after that needs only stop_confirm_s."""

@@ -183,8 +183,11 @@ class Transitions:
                            reason=f"a lone answer {d.direction} amid a stop's "
                                   f"confirmation: {d.reason}"), []
         self._watch_slowing(t_s, d)
-        if cand in ("+", "-"):
+        if cand in ("+", "-") and (cand == self.known or self.known not in ("+", "-")):
+            # only the known direction renews the cap of the wait for a reversal: a new
+            # lock on a fan at rest claiming the other way for 0.2 s held a stop to 3.2 s
             self._last_turning = float(t_s)
+        if cand in ("+", "-"):
             if cand == self.known:
                 self._see_known(t_s, _rate(d))
         elif cand == "stopped" and self.known in ("+", "-"):
@@ -269,9 +272,15 @@ class Transitions:
         the recent answers at rates the track follows well (three times the floor and
         up), extrapolated; such answers that no longer fall (the fan held or regained its
         speed) forget it. Slower answers change nothing: there the track lags and
-        flattens (it read 0.13 Hz for a second while the fan went from 0.08 Hz to 0.04)."""
+        flattens (it read 0.13 Hz for a second while the fan went from 0.08 Hz to 0.04);
+        nor do answers the other way before that way is confirmed."""
         kind = _kind(d.direction)
         if kind not in ("+", "-") or d.rate_hz is None or not math.isfinite(d.rate_hz):
+            return
+        if self.known in ("+", "-") and kind != self.known:
+            # the other way, not confirmed yet: a sign that the fan may be reversing, not
+            # a reason to forget its slowing (one early answer the other way dropped the
+            # wait, and a reversal at 0.11 Hz/s read as a stop and a start)
             return
         t, rate = float(t_s), float(d.rate_hz)
         if kind != self._seen_kind:
@@ -296,7 +305,9 @@ class Transitions:
         the lag of a track locking on it, but never beyond
         ``reversal_guard_s`` after the fan was last seen turning (a stop is due within
         3 s of rest, and the slope is an estimate), and not at all for a line that
-        reaches zero more than ``reversal_guard_s`` from now."""
+        reaches zero more than ``reversal_guard_s`` from now. The fan was last seen
+        turning when the known direction was last answered: answers the other way not
+        yet confirmed neither end the wait nor renew its cap."""
         st = self.settings
         if self._zero_by is None or self.known not in ("+", "-"):
             return None
