@@ -56,6 +56,7 @@ class MotionMeter:
         self._s = np.zeros((self.window, length))         # the pulses themselves, ring
         # (the lags' history, the last max_lag pulses, is the newest end of this ring:
         # window > max_lag + 1)
+        self._sum = np.zeros(length)                      # sum of the ring's pulses
         self._n = 0
 
     def update(self, x: np.ndarray) -> None:
@@ -84,8 +85,15 @@ class MotionMeter:
             j = (self._n + i) % self.window
             self._d[j] = row
             self._e[j] = e_ext[pos]
+            if self._n + i >= self.window:
+                self._sum -= self._s[j]
+            self._sum += xs[i]
             self._s[j] = xs[i]
         self._n += n
+        if self._n % self.window < n:
+            # once a window, the running sum is taken afresh: what rounding left in it
+            # does not build up over hours
+            self._sum = self._s[:self.count].sum(axis=0)
 
     @property
     def count(self) -> int:
@@ -111,7 +119,7 @@ class MotionMeter:
         valid = np.arange(n)[:, None] >= np.arange(1, self.max_lag + 1)[None, :]
         dm[:] = np.where(valid, d, 0.0).sum(axis=0) / valid.sum(axis=0)
         noise = float(dm.min())
-        mean = self._s[:n].mean(axis=0)
+        mean = self._sum / n          # a running sum: the ring is not re-averaged per call
         var = float(self._e[:n].mean() - mean @ mean)
         if not noise > 0:
             return (1.0 if var <= 0 else float("inf")), float("inf")
