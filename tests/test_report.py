@@ -226,3 +226,17 @@ def test_aggregate_transitions_per_kind():
     assert sp["false_per_trial"] == 0.5 and sp["false_per_hour"] == 30.0   # 1 in 120 s
     assert rv["detected"] == 0.5 and rv["missed"] == 1 and rv["false_per_hour"] == 60.0
     assert aggregate(recs) == []                          # not window trials
+
+
+def test_a_sweep_of_transitions_alone_writes_its_report(tmp_path):
+    """A custom sweep with nothing but the transitions family has no windows to plot:
+    it used to end in a traceback from the compute plot (matplotlib refused an empty
+    log scale) after all its trials had run. Now the report is written, with the
+    transitions table and without that plot."""
+    g = tmp_path / "grid.json"
+    g.write_text(json.dumps({"families": [GRID["families"][3]], "ref_seconds": 10.0}))
+    assert main(["report", "--grid", str(g), "--jobs", "1", "--out", str(tmp_path / "o")]) == 0
+    md = (tmp_path / "o" / "report.md").read_text()
+    assert "## Latency of start, stop and reversal against SNR" in md
+    assert "| 20 dB | 1 |" in md                      # its one trial's row
+    assert not (tmp_path / "o" / "compute_vs_window.png").exists()

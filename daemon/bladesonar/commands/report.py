@@ -239,8 +239,11 @@ def _write(out: Path, rep: dict[str, Any], records: list[dict[str, Any]], *,
         if any(r["family"] == "window_snr" for r in rows):
             rp.error_vs_time(rows, out / "error_vs_time.png")
             images["error against observation time"] = "error_vs_time.png"
-        rp.compute_vs_window(rows, out / "compute_vs_window.png")
-        images["compute time against window"] = "compute_vs_window.png"
+        if any((r.get("window_s") or 0) > 0 and (r.get("cpu_per_audio_s") or 0) > 0
+               for r in rows):
+            # a sweep of transitions alone has no windows: that plot would be empty
+            rp.compute_vs_window(rows, out / "compute_vs_window.png")
+            images["compute time against window"] = "compute_vs_window.png"
     (out / "report.json").write_text(json.dumps(rep, indent=1, sort_keys=True) + "\n",
                                      encoding="utf-8")
     with open(out / "trials.jsonl", "w", encoding="utf-8") as f:
