@@ -322,11 +322,12 @@ def _standing_blind(rate, n, seed=7, blind_q=0.03, stop_at=None, mirror=0):
     return k, z, q
 
 
-def _coasting_settings(coast_max):
+def _coasting_settings(coast_max, coast_min_rate=0.0):
     # the daemon's: a 0.45 Hz reference at 34 pulses/s, 4 blades, slew limit 4 times it
     st = _ramp_settings()
     return TrackerSettings(max_rate=4 * 0.45 * 4 / 34.0, q_rate=st.q_rate,
-                           max_accel=st.max_accel, q_accel=st.q_accel, coast_max=coast_max)
+                           max_accel=st.max_accel, q_accel=st.q_accel, coast_max=coast_max,
+                           coast_min_rate=coast_min_rate)
 
 
 def test_a_track_coasts_through_the_blind_half_of_a_slow_fan():
@@ -368,6 +369,22 @@ def test_clear_matches_at_the_mirror_angle_do_not_end_the_coast():
     assert tr.coasted > 34 * 4
     assert np.median(err) < 0.03 and np.percentile(err, 95) < 0.1, \
         (np.median(err), np.percentile(err, 95))
+
+
+def test_a_track_near_rest_does_not_coast():
+    """The daemon's floor for coasting is twice tracking.rate_floor_hz, 0.1 Hz (0.0118
+    blade cycles per pulse at 4 blades, 34 pulses/s): the blind-half fan at 0.2 Hz still
+    coasts with it, the same fan at 0.08 Hz (its blind half lasts 1.6 s) does not. Near
+    rest a blade standing at a blind angle is the stop a coast must not hide, and a
+    coasting follower carried a spin-down's deceleration through zero."""
+    floor = 0.1 * 4 / 34.0
+    for hz, coasts in ((0.2, True), (0.05, False)):
+        rate = hz * 4 / 34.0
+        k, z, q = _standing_blind(rate, 34 * 12)
+        tr = Tracker(_coasting_settings(int(2 * 34), coast_min_rate=floor))
+        for a, b, c in zip(k, z, q, strict=True):
+            tr.update(int(a), float(b), float(c))
+        assert (tr.coasted > 0) == coasts, (hz, tr.coasted)
 
 
 def test_a_track_that_sees_nothing_clear_stops_coasting_after_part_of_its_period():

@@ -603,3 +603,29 @@ def test_a_ramp_through_p_q_keeps_its_answer(scene, reference, schedule, seed):
     assert not any(d > 0.5 for _, d in sc.gaps), sc.gaps
     late = [r["direction"] for r in rows if r["t_s"] > 8.0]
     assert set(late) <= {"same", "unknown"} and late.count("same") >= 0.97 * len(late)
+
+
+def test_a_spin_down_at_20_db_is_not_called_a_reversal(repo_root):
+    """The `bladesonar report` transitions trial of seed 5 at 20 dB (its reference, its
+    rendering, 40 ppm of drift): near the end of the 8 s spin-down the track had coasted
+    through weak matches at 0.02 Hz, its rate follower carrying the deceleration through
+    zero, and a lock on that line called the fan coming to rest 'reversed'. A track
+    slower than the floor no longer coasts; the four truth events are found once each,
+    in time, and nothing else fires."""
+    from bladesonar import runtime_report as rr
+
+    scene = load_scene(repo_root / SCENE)
+    grid = rr.Grid(families=(rr.Family("transitions", ("paper-room",), (4,), (1.0,), (20.0,),
+                                       (), 6, transitions=True),))
+    job = next(j for j in rr.jobs(grid) if j.seed == 5)
+    base = rr.sweep_config(config.Config(), 4)
+    ref = rr.make_reference(rr._scene(scene, 4), config.Config(), 4, grid)
+    sched, total = rr.transitions_schedule(grid.transitions_schedule, job.true_ratio,
+                                           grid.ref_rate_hz)
+    clean, unit, p_fan = rr._render(rr._scene(scene, 4), base, sched, total, job.seed,
+                                    drift_ppm=grid.transitions_drift_ppm)
+    rows, _ = rr._tracked(rr._at_snr(clean, unit, p_fan, 20.0), base, ref)
+    score = score_events(truth_events(parse(sched), total),
+                         [(r["event"], r["t_s"]) for r in rows if r["event"]])
+    assert score.false == [] and score.missed == []
+    assert all(lat <= LATENCY[e.kind] for e, lat in score.hits)

@@ -376,6 +376,10 @@ ACCEL_NOISE = 0.25
 #: Longest a track coasts through weak matches (s; dsp.tracking.Tracker._coasts): a slow
 #: fan's blind half-period, 1.1 s at 0.15 Hz in the paper room, with room to spare.
 COAST_MAX_S = 2.0
+#: The slowest track that coasts, in multiples of tracking.rate_floor_hz
+#: (dsp.tracking.Tracker._coasts): twice the floor, the rate a new direction needs,
+#: kept a start's first slow tracks from coasting (a false start in a simulated hour).
+COAST_MIN_FLOORS = 1.0
 
 
 def tracker_settings(cfg: Config, ref: Reference) -> TrackerSettings:
@@ -392,7 +396,9 @@ def tracker_settings(cfg: Config, ref: Reference) -> TrackerSettings:
                            reacquire_after=t.reacquire_after, init_pulses=t.init_pulses,
                            min_coherence=t.min_coherence,
                            q_accel=(max_accel * ACCEL_NOISE) ** 2 / onset,
-                           max_accel=max_accel, coast_max=int(round(COAST_MAX_S * prf)))
+                           max_accel=max_accel, coast_max=int(round(COAST_MAX_S * prf)),
+                           coast_min_rate=COAST_MIN_FLOORS * t.rate_floor_hz
+                           * cfg.scene.blades / prf)
 
 
 def decide_settings(cfg: Config) -> DecideSettings:

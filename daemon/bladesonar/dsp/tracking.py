@@ -317,6 +317,8 @@ class TrackerSettings:
         Largest |acceleration| the follower starts with as uncertainty (cycles/pulse^2).
     coast_max : int
         Longest coast through weak matches, pulses (:meth:`Tracker._coasts`); 0: none.
+    coast_min_rate : float
+        A track slower than this (cycles per pulse) does not coast.
     """
 
     max_rate: float
@@ -330,6 +332,7 @@ class TrackerSettings:
     q_accel: float = 0.0
     max_accel: float = 0.0
     coast_max: int = 0
+    coast_min_rate: float = 0.0
 
 
 @dataclass
@@ -480,6 +483,12 @@ class Tracker:
         if quality >= COAST_BELOW or st.coast_max <= 0 or self.clear_credit < COAST_STREAK:
             return False
         assert self.x is not None
+        if abs(float(self.x[1])) < st.coast_min_rate:
+            # a track slower than the floor claims no direction, and near rest a blade
+            # standing at a blind angle is the stop a coast must not hide; the follower,
+            # coasting there, carried a spin-down's deceleration through zero, and at 20
+            # dB a lock on that line called a fan coming to rest 'reversed'
+            return False
         period = 1.0 / max(abs(float(self.x[1])), 1e-9)
         return self.clear_k is not None and \
             k - self.clear_k <= min(COAST_SHARE * period, st.coast_max)
