@@ -372,19 +372,21 @@ def test_clear_matches_at_the_mirror_angle_do_not_end_the_coast():
 
 
 def test_a_track_near_rest_does_not_coast():
-    """The daemon's floor for coasting is twice tracking.rate_floor_hz, 0.1 Hz (0.0118
-    blade cycles per pulse at 4 blades, 34 pulses/s): the blind-half fan at 0.2 Hz still
-    coasts with it, the same fan at 0.08 Hz (its blind half lasts 1.6 s) does not. Near
-    rest a blade standing at a blind angle is the stop a coast must not hide, and a
-    coasting follower carried a spin-down's deceleration through zero."""
-    floor = 0.1 * 4 / 34.0
-    for hz, coasts in ((0.2, True), (0.05, False)):
+    """The daemon's floor for coasting is tracking.rate_floor_hz, 0.05 Hz (0.0059 blade
+    cycles per pulse at 4 blades, 34 pulses/s): the blind-half fan at 0.2 Hz still
+    coasts with it, the same fan at 0.025 Hz (its blind half lasts 5 s) does not, and
+    without that floor it did. Near rest a blade standing at a blind angle is the stop a
+    coast must not hide, and a coasting follower carried a spin-down's deceleration
+    through zero."""
+    floor = 0.05 * 4 / 34.0
+    for hz, coasts in ((0.2, True), (0.025, False)):
         rate = hz * 4 / 34.0
         k, z, q = _standing_blind(rate, 34 * 12)
-        tr = Tracker(_coasting_settings(int(2 * 34), coast_min_rate=floor))
-        for a, b, c in zip(k, z, q, strict=True):
-            tr.update(int(a), float(b), float(c))
-        assert (tr.coasted > 0) == coasts, (hz, tr.coasted)
+        for min_rate, want in ((floor, coasts), (0.0, True)):
+            tr = Tracker(_coasting_settings(int(2 * 34), coast_min_rate=min_rate))
+            for a, b, c in zip(k, z, q, strict=True):
+                tr.update(int(a), float(b), float(c))
+            assert (tr.coasted > 0) == want, (hz, min_rate, tr.coasted)
 
 
 def test_a_track_that_sees_nothing_clear_stops_coasting_after_part_of_its_period():
