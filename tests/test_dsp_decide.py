@@ -84,10 +84,10 @@ def test_the_running_mean_of_the_meter_holds_over_hours():
     rng = np.random.default_rng(5)
     window, n = 170, 2 * 3600 * 34
     m = MotionMeter(16, window, 16)
-    tail = None
+    tail = np.zeros((0, 16))
     for _ in range(0, n, 8):
         xs = 0.5 + 1e-3 * rng.standard_normal((8, 16))
         m.update_block(xs)
-        tail = xs if tail is None else np.vstack([tail, xs])[-window:]
+        tail = np.vstack([tail, xs])[-window:]
     got, want = m.statistic(), motion_statistic(tail, 16)
     assert np.allclose(got, want, rtol=1e-9, atol=0.0), (got, want)

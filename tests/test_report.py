@@ -234,7 +234,9 @@ def test_a_sweep_of_transitions_alone_writes_its_report(tmp_path):
     log scale) after all its trials had run. Now the report is written, with the
     transitions table and without that plot."""
     g = tmp_path / "grid.json"
-    g.write_text(json.dumps({"families": [GRID["families"][3]], "ref_seconds": 10.0}))
+    family = {"name": "transitions", "scenes": ["paper-room"], "blades": [4], "ratios": [1.0],
+              "snrs_db": [20.0], "windows_s": [], "seeds": 1, "transitions": True}
+    g.write_text(json.dumps({"families": [family], "ref_seconds": 10.0}))
     assert main(["report", "--grid", str(g), "--jobs", "1", "--out", str(tmp_path / "o")]) == 0
     md = (tmp_path / "o" / "report.md").read_text()
     assert "## Latency of start, stop and reversal against SNR" in md
