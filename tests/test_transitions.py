@@ -317,25 +317,41 @@ def _slow_down(tr, t0, t1, r0, slope, pulse=0):
     return pulse + n + 1
 
 
-def _stop_time(tr, t0, pulse, until=20.0):
-    """'stopped' answers every 0.1 s from t0; the time the stop fires (None: never)."""
+def _quiet_with(tr, t0, pulse, answers, until=20.0):
+    """'stopped' answers every 0.1 s from t0, with ``answers`` (index: decision) in
+    their place; (the time the stop fires, None: never; the states published up to it)."""
+    states = []
     for j in range(int(round((until - t0) / 0.1))):
         t = t0 + 0.1 * j
-        state, ev = tr.step(t, pulse + j, _d("stopped"))
+        state, ev = tr.step(t, pulse + j, answers.get(j, _d("stopped")))
+        states.append(state)
         if ev:
             assert [e.kind for e in tr.events] == ["stopped"]
-            return t
-        assert state.direction == "unknown"
-    return None
+            return round(t, 3), states
+    return None, states
+
+
+def _stop_time(tr, t0, pulse, until=20.0):
+    """'stopped' answers every 0.1 s from t0; the time the stop fires (None: never),
+    every state before it unknown."""
+    t, states = _quiet_with(tr, t0, pulse, {}, until)
+    assert all(s.direction == "unknown" for s in (states[:-1] if t is not None else states))
+    return t
+
+
+def _slowed(st, t1, slope):
+    """Known turning at 0.3 Hz (10 answers/s), slowing at ``slope`` Hz/s from t = 1 s
+    to ``t1``; (the machine, its next pulse)."""
+    tr = Transitions(st, 10.0)
+    for i in range(10):
+        tr.step(i * 0.1, i, _d("same", 0.3))
+    return tr, _slow_down(tr, 1.0, t1, 0.3, slope, pulse=10)
 
 
 def _slowing_then_quiet(st):
     """Known turning at 0.3 Hz, slowing at 0.05 Hz/s from t = 1 s to 4 s (0.15 Hz),
     then quiet from 4.1 s; the time the stop fires."""
-    tr = Transitions(st, 10.0)
-    for i in range(10):
-        tr.step(i * 0.1, i, _d("same", 0.3))
-    k = _slow_down(tr, 1.0, 4.0, 0.3, -0.05, pulse=10)
+    tr, k = _slowed(st, 4.0, -0.05)
     return _stop_time(tr, 4.1, k)
 
 
@@ -397,15 +413,9 @@ def test_a_lone_answer_of_the_old_direction_does_not_restart_a_stop():
         tr = Transitions(TransitionSettings(reversal_guard_s=10.0), 10.0)
         for i in range(40):
             tr.step(i * 0.1, i, _d("same", 0.3))
-        for j in range(30):
-            t = 4.0 + 0.1 * j
-            state, ev = tr.step(t, 40 + j, _d("same", 0.13) if j in blips
-                                else _d("stopped"))
-            if j == min(blips):
-                assert state.direction == "unknown"
-            if ev:
-                return round(t, 3)
-        return None
+        t, states = _quiet_with(tr, 4.0, 40, {j: _d("same", 0.13) for j in blips}, 7.0)
+        assert states[min(blips)].direction == "unknown"
+        return t
     assert run({3}) == 4.8
     assert run({3, 4}) == 5.2
 
@@ -413,17 +423,8 @@ def test_a_lone_answer_of_the_old_direction_does_not_restart_a_stop():
 def test_a_lone_answer_of_the_old_direction_does_not_move_the_cap_of_the_wait():
     """The slowing fan of the capped wait (last turning answer at 4.0 s, stop due at
     7.0 s), with one 'same' at 0.12 Hz at 5.0 s amid the quiet answers: still 7.0 s."""
-    tr = Transitions(TransitionSettings(), 10.0)
-    for i in range(10):
-        tr.step(i * 0.1, i, _d("same", 0.3))
-    k = _slow_down(tr, 1.0, 4.0, 0.3, -0.05, pulse=10)
-    fired = None
-    for j in range(60):
-        t = 4.1 + 0.1 * j
-        _, ev = tr.step(t, k + j, _d("same", 0.12) if j == 9 else _d("stopped"))
-        if ev:
-            fired = t
-            break
+    tr, k = _slowed(TransitionSettings(), 4.0, -0.05)
+    fired, _ = _quiet_with(tr, 4.1, k, {9: _d("same", 0.12)}, 10.1)
     assert fired is not None and 7.0 - 1e-9 <= fired < 7.2, fired
 
 
@@ -435,19 +436,13 @@ def test_past_the_zero_of_its_slowing_line_the_old_direction_needs_a_new_directi
     the cap (renewed, the stop would wait for 4.0 + 0.1/0.1 + 1.3 = 6.3 s). At 0.12 Hz
     they are the fan turning again: no stop before 4.9 + 0.7 = 5.6 s."""
     def run(rate):
-        tr = Transitions(TransitionSettings(), 10.0)
-        for i in range(10):
-            tr.step(i * 0.1, i, _d("same", 0.3))
-        k = _slow_down(tr, 1.0, 2.5, 0.3, -0.1, pulse=10)
-        for j in range(60):
-            t = 2.6 + 0.1 * j
-            slow = 19 <= j <= 22
-            state, ev = tr.step(t, k + j, _d("same", rate) if slow else _d("stopped"))
-            if slow and rate < 0.1:
-                assert state.direction == "unknown" and "0.1 Hz needed" in state.reason
-            if ev:
-                return round(t, 3)
-        return None
+        tr, k = _slowed(TransitionSettings(), 2.5, -0.1)
+        t, states = _quiet_with(tr, 2.6, k, {j: _d("same", rate) for j in range(19, 23)},
+                                8.6)
+        if rate < 0.1:
+            assert all(s.direction == "unknown" and "0.1 Hz needed" in s.reason
+                       for s in states[19:23])
+        return t
     assert run(0.07) == 5.5
     assert run(0.12) >= 5.6
 
@@ -459,18 +454,9 @@ def test_an_early_answer_the_other_way_neither_ends_the_wait_nor_renews_its_cap(
     stop came at 3.6 + 0.7 = 4.3 s); and it is no answer of the known direction, so the
     wait is capped 3 s after the last of those, at 2.5 + 3 = 5.5 s (renewed, at 6.5 s:
     a new lock on the demo's fan at rest held its stop 3.2 s after rest that way)."""
-    tr = Transitions(TransitionSettings(), 10.0)
-    for i in range(10):
-        tr.step(i * 0.1, i, _d("same", 0.3))
-    k = _slow_down(tr, 1.0, 2.5, 0.3, -0.1, pulse=10)
-    fired = None
-    for j in range(40):
-        t = 2.6 + 0.1 * j
-        state, ev = tr.step(t, k + j, _d("reversed", 0.14) if j == 9 else _d("stopped"))
-        assert state.direction == "unknown" or ev
-        if ev:
-            fired = round(t, 3)
-            break
+    tr, k = _slowed(TransitionSettings(), 2.5, -0.1)
+    fired, states = _quiet_with(tr, 2.6, k, {9: _d("reversed", 0.14)}, 6.6)
+    assert all(s.direction == "unknown" for s in states[:-1])
     assert fired == 5.5, fired
     assert [e.kind for e in tr.events] == ["stopped"]
 

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .. import config as config_mod
+from ..dsp.stats import median
 from ..errors import BladesonarError, ReferenceMissingError
 from ..live import Estimate, LiveAnalyzer
 from ..reference_fit import FitWatch
@@ -46,14 +47,6 @@ FIT_SAMPLE_S = 1.0
 #: A reference's direction is taken from the estimates made during its recording when at
 #: least this share of them named one rotation and none named the other.
 DIRECTION_AGREEMENT = 0.8
-
-
-def _median(values: list[float]) -> float:
-    """``statistics.median`` (the same value) without importing ``statistics`` into the
-    daemon for one number of the stats."""
-    v = sorted(values)
-    n = len(v)
-    return v[n // 2] if n % 2 else (v[n // 2 - 1] + v[n // 2]) / 2
 
 
 def _add_counts(total: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
@@ -794,7 +787,7 @@ class Service:
             "clock_ppm": an.get("clock_ppm"),
             "device": an.get("device"),      # clipped coupling, gain wander, bursts, tail
             "audio_restarts": self.counters.audio_restarts,
-            "latency_ms": ({"median": round(1e3 * _median(lat), 1),
+            "latency_ms": ({"median": round(1e3 * float(median(np.asarray(lat))), 1),
                             "max": round(1e3 * max(lat), 1), "n": len(lat)} if lat else None),
             "reloads": self.counters.reloads,
             "reload_errors": self.counters.reload_errors,
