@@ -83,3 +83,33 @@ def test_table_fills_bins_nothing_fell_into():
     assert w[1] == 0 and w[3] == 0
     np.testing.assert_allclose(table[1], [2.0, 4.0])
     np.testing.assert_allclose(table[3], [2.0, 4.0])
+
+
+def test_distance_floor_of_orthogonal_rows_is_a_share_of_their_distance():
+    """Rows a * e_b of the identity are all 2 a^2 apart (closed form)."""
+    a = 0.3
+    table = a * np.eye(32)
+    assert np.isclose(fp.distance_floor(table), fp.FLAT_SHARE * 2 * a * a, rtol=1e-12)
+    assert fp.distance_floor(table[:1]) == 0.0      # one bin: no alternative at all
+
+
+def test_a_pulse_on_a_flat_part_of_the_table_has_no_quality():
+    """Half the table alike (no blade in view), half distinct. A noiseless pulse close to
+    one flat bin, closer by a hair than to the others, had a contrast of 1 - d0 / d_far
+    well above any clear match's threshold; on the table's own scale those bins are one
+    and the same, and with the floor the match says next to nothing. A pulse on a
+    distinct bin keeps its contrast exactly."""
+    rng = np.random.default_rng(11)
+    bins, n = 32, 64
+    table = np.zeros((bins, n))
+    table[:16] = rng.standard_normal((16, n))             # distinct angles
+    table[16:] = 1e-3 * rng.standard_normal((16, n))      # flat: all but alike
+    floor = fp.distance_floor(table)
+    flat = table[24] + 1e-4 * rng.standard_normal(n)      # nearest bin 24 by a hair
+    plain, floored = fp.match(flat, table), fp.match(flat, table, floor=floor)
+    assert int(round(float(plain.phase[0]) * bins)) % bins >= 16
+    assert plain.quality[0] > 0.2                         # a "clear" match without the floor
+    assert floored.quality[0] < 1e-3
+    distinct = table[5] + 0.05 * rng.standard_normal(n)
+    a, b = fp.match(distinct, table), fp.match(distinct, table, floor=floor)
+    assert a.quality[0] > 0.5 and b.quality[0] == a.quality[0]

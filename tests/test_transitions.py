@@ -78,9 +78,11 @@ LATENCY = {"started": 2.0, "stopped": 3.0, "reversed": 2.0}
 # An abrupt stop, which no real fan makes, with the blade at rest out of view: the track
 # coasts on as through the blind part of a turning fan's blade period (0.6 of it, 0.33 s),
 # and the answers that follow sag before the short meter sees the rest, so the old
-# direction stands for up to 0.9 s (measured 25 of 610 states; 0.4 s before the track
-# coasted)
-WRONG_SHARE = {"abrupt-stop": 0.045}
+# direction stands for up to 0.9 s (0.4 s before the track coasted). Seeds 3-7: 25-29 of
+# 610 states, the last at 0.72-0.83 s (before matches on the table's flat part lost their
+# quality: 25-41, up to 1.20 s; the weak matches after the stop no longer pull a re-lock
+# off the old line, so it holds a little longer in seed 3 and much less in seed 4)
+WRONG_SHARE = {"abrupt-stop": 0.05}
 
 
 @pytest.mark.parametrize("name", list(SCENES))
@@ -591,26 +593,38 @@ def test_a_ramp_through_p_q_keeps_its_answer(scene, reference, schedule, seed):
     assert set(late) <= {"same", "unknown"} and late.count("same") >= 0.97 * len(late)
 
 
-def test_a_spin_down_at_20_db_is_not_called_a_reversal(repo_root):
-    """The `bladesonar report` transitions trial of seed 5 at 20 dB (its reference, its
-    rendering, 40 ppm of drift): near the end of the 8 s spin-down the track had coasted
-    through weak matches at 0.02 Hz, its rate follower carrying the deceleration through
-    zero, and a lock on that line called the fan coming to rest 'reversed'. A track
-    slower than the floor no longer coasts; the four truth events are found once each,
-    in time, and nothing else fires."""
+@pytest.mark.parametrize("snr_db, seed", [(20.0, 5), (30.0, 5), (30.0, 3)])
+def test_report_transitions_trials_at_high_snr(repo_root, snr_db, seed):
+    """The `bladesonar report` transitions trials (their reference, their rendering, 40
+    ppm of drift) that went wrong: the four truth events are found once each, in time,
+    and nothing else fires.
+
+    - 20 dB, seed 5: near the end of the 8 s spin-down the track had coasted through
+      weak matches at 0.02 Hz, its rate follower carrying the deceleration through zero,
+      and a lock on that line called the fan coming to rest 'reversed' (a track slower
+      than the floor no longer coasts).
+    - 30 dB, seeds 5 and 3: while no blade was in view the pulses matched one bin of the
+      table's flat (blind) half at a quality of 0.13-0.23, a standing line that dragged
+      the track to rest before the fan and the follower through zero: a false 'reversed'
+      at the end of the spin-down (seed 5) and 0.14 s before the reversal's zero (seed
+      3). Such matches now have next to no quality (fingerprint.FLAT_SHARE). Then, in
+      seed 5, the short meter of the fan resting in view hovered about its threshold
+      (clock drift) and the 6 s rest was never called stopped: a track standing still
+      in view now lets a meter up to SEEN_STILL_FACTOR times the threshold read as
+      rest."""
     from bladesonar import runtime_report as rr
 
     scene = load_scene(repo_root / SCENE)
-    grid = rr.Grid(families=(rr.Family("transitions", ("paper-room",), (4,), (1.0,), (20.0,),
-                                       (), 6, transitions=True),))
-    job = next(j for j in rr.jobs(grid) if j.seed == 5)
+    grid = rr.Grid(families=(rr.Family("transitions", ("paper-room",), (4,), (1.0,),
+                                       (snr_db,), (), 6, transitions=True),))
+    job = next(j for j in rr.jobs(grid) if j.seed == seed)
     base = rr.sweep_config(config.Config(), 4)
     ref = rr.make_reference(rr._scene(scene, 4), config.Config(), 4, grid)
     sched, total = rr.transitions_schedule(grid.transitions_schedule, job.true_ratio,
                                            grid.ref_rate_hz)
     clean, unit, p_fan = rr._render(rr._scene(scene, 4), base, sched, total, job.seed,
                                     drift_ppm=grid.transitions_drift_ppm)
-    rows, _ = rr._tracked(rr._at_snr(clean, unit, p_fan, 20.0), base, ref)
+    rows, _ = rr._tracked(rr._at_snr(clean, unit, p_fan, snr_db), base, ref)
     score = score_events(truth_events(parse(sched), total),
                          [(r["event"], r["t_s"]) for r in rows if r["event"]])
     assert score.false == [] and score.missed == []

@@ -617,6 +617,7 @@ class PulseAnalyzer:
                                  max_lag=max(3, min(lags, short // 2)))
         self.slow = StaticRemover(self.static.alpha / SLOW_FACTOR, self.static.mean)
         self._table_norms = (self.ref.table ** 2).sum(axis=1)
+        self._table_floor = fp.distance_floor(self.ref.table)
         prf = self.cfg.prf_hz
         self.aliases = aliasing.AliasWatch(
             aliasing.fine_table(self.ref.table), self.window, self.ref.cycles_per_pulse,
@@ -731,7 +732,7 @@ class PulseAnalyzer:
             self.check_scale(self.static.mean)
         if self._rescale is not None:
             feats = self._rescale(feats)
-        m = fp.match(feats, self.ref.table, self._table_norms)
+        m = fp.match(feats, self.ref.table, self._table_norms, self._table_floor)
         dist = aliasing.distances(feats, self.aliases.fine)
         still_feats = fp.envelope_features(self.slow(xv), np.zeros(res.shape[1]),
                                            kind="envelope", smooth=a.envelope_smooth,
@@ -1046,7 +1047,7 @@ class PulseAnalyzer:
         still, _ = self.still.statistic()
         args = dict(still=still, accel=accel * prf,
                     changing_odds=self.tracker.follower_weight,
-                    at_rest=self.static.frozen,
+                    at_rest=self.static.frozen, seen_still=self._seen_still(),
                     rate=rate, rate_std=sd, locked=locked,
                     accepted=accepted,
                     quality=float(qual.mean()) if len(qual) else 0.0,
@@ -1066,8 +1067,6 @@ class PulseAnalyzer:
             # tracked rate is the latest and lags it); a changing one is the follower's
             args["rate"] = mean
             d = decide(**args)
-        if d.direction == "stopped" and self._seen_still():
-            d = replace(d, seen_still=True)
         misfit = self.scale_misfit
         if misfit and d.direction in ("same", "reversed"):
             return Decision("unknown", None, d.relative_rate, d.rate_hz, d.rpm,

@@ -11,12 +11,12 @@ that fit. So ``fit`` is about 1 where the reference fits and falls towards 0 whe
 does not; a stopped fan says nothing and is not counted.
 
 Measured on the simulator (tools/fit_table: paper room, reference 20 s at 0.45 Hz, probes
-40 s at 0.4 Hz; docs/mqtt.md): mean quality / reference quality 0.413 in the same room at
-0 and 20 dB, 0.40-0.41 with a wall moved by 0.2-0.3 m, 0.38 with two walls made more
-absorbing, 0.42 at +5 and +15 degrees C (rescaled by the analysis); 0.15 with the sensor
-moved by 5 cm, 0.01-0.02 by 20 cm, 0.07-0.08 at +20 degrees C (beyond the rescaling).
-With the default ``stale_fit`` 0.6 the fitting rooms (fit 0.92-1.03) and the others
-(0.03-0.37) are far apart.
+40 s at 0.4 Hz; docs/mqtt.md): mean quality / reference quality 0.41 in the same room at
+0 and 20 dB, 0.39-0.41 with a wall moved by 0.2-0.3 m, 0.37 with two walls made more
+absorbing, 0.41-0.42 at +5 and +15 degrees C (rescaled by the analysis); 0.15 with the
+sensor moved by 5 cm, 0.01-0.02 by 20 cm, 0.07 at +20 degrees C (beyond the rescaling).
+With the default ``stale_fit`` 0.6 the fitting rooms (fit 0.90-1.02) and the others
+(0.03-0.36) are far apart.
 """
 
 from __future__ import annotations

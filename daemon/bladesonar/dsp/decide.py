@@ -183,6 +183,15 @@ class Decision:
                     confidence=r(self.confidence, 4), reason=self.reason)
 
 
+#: A short meter under this many times ``motion_threshold`` reads as rest when the matches
+#: show the blade standing still in view (``seen_still``). At 30 dB with 40 ppm of clock
+#: drift the aligner's residual error kept a fan at rest in view at 1.01-1.14 at the
+#: median (up to 1.5 when the rest began), around the threshold of 1.15, and one rest of
+#: 6 s was never called stopped; a turning fan read 1.67 or more at the 5th percentile,
+#: a slow reversal 1.5 s at 0.02 Hz in view 7.7 (the report's transitions sweep).
+SEEN_STILL_FACTOR = 1.3
+
+
 def _normal_cdf(x: float) -> float:
     return 0.5 * (1.0 + math.erf(x / math.sqrt(2.0)))
 
@@ -191,7 +200,7 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
            motion: float, scene: float, ref_cycles_per_pulse: float, ref_rate_hz: float,
            ref_direction: str = "unknown", alias_gap: float = math.inf,
            alias_note: str = "", still: float = math.nan, accel: float = 0.0,
-           changing_odds: float = 0.0, at_rest: bool = False,
+           changing_odds: float = 0.0, at_rest: bool = False, seen_still: bool = False,
            settings: DecideSettings = DecideSettings()) -> Decision:
     """Direction and rate of one window.
 
@@ -232,6 +241,11 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     at_rest : bool
         The fan was seen to come to rest and the static estimate is held (the analysis's
         ``StaticRemover.frozen``): a quiet meter then outweighs any track.
+    seen_still : bool
+        The matches show the blade standing still in view (the analysis's
+        ``_seen_still``): a short meter under ``SEEN_STILL_FACTOR`` times the threshold
+        then reads as rest (high SNR with clock drift leaves a resting fan's meter about
+        the threshold), and the answer says it was seen still.
 
     Notes
     -----
@@ -268,14 +282,19 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     # its echoes for the meter to see.
     moving = turning and conf >= s.min_confidence and rate_hz >= 2.0 * s.rate_floor_hz \
         and abs(rate) >= 4.0 * rate_std and not at_rest
-    quiet = still < s.motion_threshold if math.isfinite(still) else \
-        (math.isfinite(motion) and motion < s.motion_threshold)
+    m = still if math.isfinite(still) else motion
+    quiet = math.isfinite(m) and m < s.motion_threshold
     if quiet and not moving:
-        m = still if math.isfinite(still) else motion
         c = min(max((s.motion_threshold - m) / (s.motion_threshold - 1.0), 0.0), 1.0)
         return Decision("stopped", None, 0.0, 0.0, 0.0, c,
                         f"no change between pulses beyond noise (motion {m:.3f} < "
-                        f"{s.motion_threshold:g})", warnings)
+                        f"{s.motion_threshold:g})", warnings, seen_still=seen_still)
+    limit = SEEN_STILL_FACTOR * s.motion_threshold
+    if seen_still and math.isfinite(still) and still < limit and not moving:
+        c = min(max((limit - still) / (limit - 1.0), 0.0), 1.0)
+        return Decision("stopped", None, 0.0, 0.0, 0.0, c,
+                        f"the blade stands still in view, little change between pulses "
+                        f"(motion {still:.3f} < {limit:.3g})", warnings, seen_still=True)
     if not turning:
         return Decision("unknown", None, None, None, None, 0.0,
                         "no consistent match against the reference", warnings)
