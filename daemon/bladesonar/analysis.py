@@ -368,11 +368,16 @@ SCALE_MIN_CORR = 0.5
 SCALE_EVERY = 1024
 
 #: Acceleration noise of the rate follower: the standard deviation of its change per half
-#: second, as a share of the steepest ramp (tracking.max_ramp_hz_s). A quarter: on
+#: second, as a share of the steepest ramp (tracking.max_ramp_hz_s). A quarter first: on
 #: simulated ramps of 0.03-0.1 Hz/s at 10 dB the 95th percentile rate error fell from
 #: 13 % to 9-11 % (the follower's own rate was less noisy, so the matches favoured it
 #: sooner); a lock taken on a ramp still starts with the steepest ramp as uncertainty.
-ACCEL_NOISE = 0.25
+#: 0.4 once matches with no blade in view lost their quality (fingerprint.FLAT_SHARE):
+#: the ramp error's 95th percentile in four simulated hours went from 8.7 / 9.1 / 10.4 /
+#: 8.1 % to 8.0 / 9.3 / 9.7 / 7.8 % (0.35: 8.3 / 9.2 / 10.0 / 7.8 %), every event the
+#: same; steady rates a little noisier (all states' 95th percentile 2.4-3.6 %, from
+#: 2.2-3.2 %). Before that change 0.35 had cost a 0.94 s 'unknown' mid-turn.
+ACCEL_NOISE = 0.4
 #: Longest a track coasts through weak matches (s; dsp.tracking.Tracker._coasts): a slow
 #: fan's blind half-period, 1.1 s at 0.15 Hz in the paper room, with room to spare.
 COAST_MAX_S = 2.0
