@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import pytest
 
 from bladesonar.dsp.decide import DecideSettings, decide, motion_statistic
 from bladesonar.dsp.fingerprint import envelope_features
@@ -73,6 +74,38 @@ def test_motion_meter_blocks_equal_single_pulses():
     for i in range(0, 90, 17):
         b.update_block(x[i:i + 17])
     np.testing.assert_allclose(a.statistic(), b.statistic(), rtol=1e-9)
+
+
+def _motion_by_definition(x: np.ndarray, max_lag: int) -> tuple[float, float]:
+    """V / min_m D_m and |mean|^2 / min_m D_m straight from the definitions over the rows
+    of ``x`` (the window, oldest first): V the temporal variance, D_m the mean half squared
+    difference of the pulses m apart."""
+    mean = x.mean(axis=0)
+    var = float((x * x).sum(axis=1).mean() - mean @ mean)
+    d = [0.5 * float(((x[m:] - x[:-m]) ** 2).sum(axis=1).mean()) for m in range(1, max_lag + 1)]
+    return var / min(d), float(mean @ mean) / min(d)
+
+
+@pytest.mark.parametrize("block", [1, 3, 8, 40, 130])
+def test_the_meter_gives_the_definition_over_its_window(block):
+    """The meter keeps lag energies per pulse in rings and drops, at each statistic, the
+    ones whose predecessor has left the window; the result must be the definitions'
+    (computed from the last window's pulses directly) whatever the blocks it was fed in,
+    before its ring is full and after it has wrapped many times."""
+    from bladesonar.dsp.decide import MotionMeter
+    rng = np.random.default_rng(block)
+    window, lag = 40, 12
+    x = 0.3 + rng.standard_normal((333, 20)) * np.linspace(0.5, 2.0, 333)[:, None]
+    m = MotionMeter(20, window, lag)
+    fed = 0
+    for i in range(0, len(x), block):
+        m.update_block(x[i:i + block])
+        fed = min(i + block, len(x))
+        if fed >= lag + 2:
+            got = m.statistic()
+            want = _motion_by_definition(x[max(fed - window, 0):fed], lag)
+            np.testing.assert_allclose(got, want, rtol=1e-9)
+    assert fed == len(x)
 
 
 def test_the_running_mean_of_the_meter_holds_over_hours():
