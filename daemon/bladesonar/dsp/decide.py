@@ -77,11 +77,16 @@ class MotionMeter:
             return
         M = self.max_lag
         h = min(self._n, M)                              # history pulses available
-        hist = self._s[(self._n - h + np.arange(h)) % self.window] if h else \
-            np.zeros((0, xs.shape[1]))
-        ext = np.vstack([hist, xs])                      # (h + n, L), in time order
-        e_ext = np.einsum("ij,ij->i", ext, ext)
-        gram = ext @ xs.T                                # (h + n, n)
+        # products of the new pulses with the last h ones and with each other, the
+        # history read in place from the ring (one or two contiguous runs: a gathered
+        # copy of it was most of the cost with 85 lags of 780 samples)
+        start = (self._n - h) % self.window
+        runs = [(start, min(start + h, self.window))]
+        if start + h > self.window:
+            runs.append((0, start + h - self.window))
+        e_new = np.einsum("ij,ij->i", xs, xs)
+        e_ext = np.concatenate([self._e[a:b] for a, b in runs] + [e_new])
+        gram = np.vstack([self._s[a:b] @ xs.T for a, b in runs] + [xs @ xs.T])   # (h + n, n)
         pos = h + np.arange(n)                           # index of each new pulse in ext
         src = pos[:, None] - np.arange(1, M + 1)[None, :]   # its predecessor at each lag
         ok = src >= 0
@@ -94,7 +99,7 @@ class MotionMeter:
             self._sum -= self._s[j[full]].sum(axis=0)
         self._sum += xs.sum(axis=0)
         self._d[j] = rows
-        self._e[j] = e_ext[pos]
+        self._e[j] = e_new
         self._s[j] = xs
         self._n += n
         if self._n % self.window < n:
