@@ -374,9 +374,10 @@ SCALE_EVERY = 1024
 #: sooner); a lock taken on a ramp still starts with the steepest ramp as uncertainty.
 #: 0.4 once matches with no blade in view lost their quality (fingerprint.FLAT_SHARE):
 #: the ramp error's 95th percentile in four simulated hours went from 8.7 / 9.1 / 10.4 /
-#: 8.1 % to 8.0 / 9.3 / 9.7 / 7.8 % (0.35: 8.3 / 9.2 / 10.0 / 7.8 %), every event the
-#: same; steady rates a little noisier (all states' 95th percentile 2.4-3.6 %, from
-#: 2.2-3.2 %). Before that change 0.35 had cost a 0.94 s 'unknown' mid-turn.
+#: 8.1 % to 8.0 / 9.3 / 9.7 / 7.8 % (0.35: 8.3 / 9.2 / 10.0 / 7.8 %; 0.5: a reversal read
+#: as a stop and a start, and a 3.2 s stop, in seed 3), every event the same; steady
+#: rates a little noisier (all states' 95th percentile 2.4-3.6 %, from 2.2-3.2 %).
+#: Before that change 0.35 had cost a 0.94 s 'unknown' mid-turn.
 ACCEL_NOISE = 0.4
 #: Longest a track coasts through weak matches (s; dsp.tracking.Tracker._coasts): a slow
 #: fan's blind half-period, 1.1 s at 0.15 Hz in the paper room, with room to spare.
