@@ -410,3 +410,39 @@ def test_a_track_that_sees_nothing_clear_stops_coasting_after_part_of_its_period
     lost = next(i for i in range(last_coast, len(seen)) if not seen[i][1])
     assert lost - last_coast <= 34
     assert not any(locked for _, locked in seen[lost:])
+
+
+def test_the_written_out_three_state_steps_are_the_matrix_forms():
+    """The rate follower's predict and update are written out for speed; they must be
+    the matrix forms: x' = F x, P' = F P F^T + Q (transition, process_noise), and the
+    Joseph update (I - K H) P (I - K H)^T + r K K^T, here computed with numpy's matrix
+    products, over random states, gaps of 1-5 pulses and stiff covariances."""
+    from bladesonar.dsp.tracking import kalman_predict, process_noise, transition
+    rng = np.random.default_rng(21)
+    for _ in range(200):
+        x = np.array([rng.uniform(0, 1), rng.normal(0, 0.05), rng.normal(0, 1e-3)])
+        L = rng.normal(size=(3, 3)) * np.array([1e-1, 1e-3, 1e-5])[:, None]
+        P = L @ L.T + np.diag([1e-12, 1e-14, 1e-16])
+        steps = int(rng.integers(1, 6))
+        q, qa = 10 ** rng.uniform(-9, -5), 10 ** rng.uniform(-14, -9)
+        xp, Pp = kalman_predict(x, P, q, steps, qa)
+        F = transition(steps, 3)
+        want_x = F @ x
+        want_x[0] %= 1.0
+        want_P = F @ P @ F.T + process_noise(steps, 3, q, qa)
+        assert np.allclose(xp, want_x, rtol=1e-12, atol=1e-15)
+        assert np.allclose(Pp, want_P, rtol=1e-9, atol=1e-18)
+        assert np.array_equal(Pp, Pp.T)
+        z, r = float(rng.uniform(0, 1)), 10 ** rng.uniform(-5, -2)
+        xu, Pu = kalman_update(xp, Pp, z, r)
+        nu = (z - xp[0] + 0.5) % 1.0 - 0.5
+        s = Pp[0, 0] + r
+        K = Pp[:, 0] / s
+        A = np.eye(3) - np.outer(K, [1.0, 0.0, 0.0])
+        want_P = A @ Pp @ A.T + r * np.outer(K, K)
+        want_x = xp + K * nu
+        want_x[0] %= 1.0
+        assert np.allclose(xu, want_x, rtol=1e-12, atol=1e-15)
+        assert np.allclose(Pu, want_P, rtol=1e-9, atol=1e-18)
+        assert np.array_equal(Pu, Pu.T)
+        assert np.all(np.linalg.eigvalsh(Pu) > -1e-18)

@@ -126,6 +126,27 @@ def kalman_predict(x: np.ndarray, P: np.ndarray, q: float, steps: int = 1,
         a01 = p01 + n * p11 + q * n * n / 2.0
         return (np.array([(ph + n * w) % 1.0, w]),
                 np.array([[a00, a01], [a01, p11 + q * n]]))
+    if dim == 3:
+        # the rate follower's per-pulse path: F P F^T + Q written out (F = transition,
+        # Q = process_noise), no matrix products; tests compare it with them
+        n = float(steps)
+        h = 0.5 * n * n
+        ph, w, a = float(x[0]), float(x[1]), float(x[2])
+        p00, p01, p02 = float(P[0, 0]), float(P[0, 1]), float(P[0, 2])
+        p11, p12, p22 = float(P[1, 1]), float(P[1, 2]), float(P[2, 2])
+        r00, r01, r02 = p00 + n * p01 + h * p02, p01 + n * p11 + h * p12, \
+            p02 + n * p12 + h * p22
+        r11, r12 = p11 + n * p12, p12 + n * p22
+        n2, n3 = n * n, n * n * n
+        qa = q_accel
+        a00 = r00 + n * r01 + h * r02 + q * n3 / 3.0 + qa * n2 * n3 / 20.0
+        a01 = r01 + n * r02 + q * n2 / 2.0 + qa * n2 * n2 / 8.0
+        a02 = r02 + qa * n3 / 6.0
+        a11 = r11 + n * r12 + q * n + qa * n3 / 3.0
+        a12 = r12 + qa * n2 / 2.0
+        a22 = p22 + qa * n
+        return (np.array([(ph + n * w + h * a) % 1.0, w + n * a, a]),
+                np.array([[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]]))
     F = transition(steps, dim)
     xn = F @ np.asarray(x, dtype=np.float64)
     xn[0] %= 1.0
@@ -153,6 +174,19 @@ def kalman_update(x: np.ndarray, P: np.ndarray, z: float, r: float
         n11 = c * c * p00 + 2 * c * p01 + p11 + k1 * k1 * r
         return (np.array([(float(x[0]) + k0 * nu) % 1.0, float(x[1]) + k1 * nu]),
                 np.array([[n00, n01], [n01, n11]]))
+    if len(x) == 3:
+        # (I - K H) P (I - K H)^T + K r K^T written out: entry (i, j) is
+        # p_ij - k_i p_0j - (p_i0 - k_i p_00) k_j + r k_i k_j
+        p = [[float(v) for v in row] for row in P]
+        k = [p[0][0] / s, p[1][0] / s, p[2][0] / s]
+        c = [p[i][0] - k[i] * p[0][0] for i in range(3)]
+        m = [[p[i][j] - k[i] * p[0][j] - c[i] * k[j] + r * k[i] * k[j] for j in range(3)]
+             for i in range(3)]
+        for i in range(3):
+            for j in range(i):
+                m[i][j] = m[j][i] = 0.5 * (m[i][j] + m[j][i])
+        return (np.array([(float(x[0]) + k[0] * nu) % 1.0, float(x[1]) + k[1] * nu,
+                          float(x[2]) + k[2] * nu]), np.array(m))
     K = P[:, 0] / s
     # (I - K H) P (I - K H)^T + K r K^T with H = [1, 0, ...]
     A = np.eye(len(x))
