@@ -179,8 +179,8 @@ def kalman_update(x: np.ndarray, P: np.ndarray, z: float, r: float
         # p_ij - k_i p_0j - (p_i0 - k_i p_00) k_j + r k_i k_j
         p = [[float(v) for v in row] for row in P]
         k = [p[0][0] / s, p[1][0] / s, p[2][0] / s]
-        c = [p[i][0] - k[i] * p[0][0] for i in range(3)]
-        m = [[p[i][j] - k[i] * p[0][j] - c[i] * k[j] + r * k[i] * k[j] for j in range(3)]
+        col = [p[i][0] - k[i] * p[0][0] for i in range(3)]
+        m = [[p[i][j] - k[i] * p[0][j] - col[i] * k[j] + r * k[i] * k[j] for j in range(3)]
              for i in range(3)]
         for i in range(3):
             for j in range(i):
