@@ -91,10 +91,11 @@ class MotionMeter:
         src = pos[:, None] - np.arange(1, M + 1)[None, :]   # its predecessor at each lag
         ok = src >= 0
         src = np.where(ok, src, 0)
-        rows = 0.5 * (e_ext[pos][:, None] + e_ext[src] - 2.0 * gram[src, np.arange(n)[:, None]])
+        rows = 0.5 * (e_new[:, None] + e_ext[src] - 2.0 * gram[src, np.arange(n)[:, None]])
         rows[~ok] = 0.0
-        j = (self._n + np.arange(n)) % self.window
-        full = self._n + np.arange(n) >= self.window     # slots whose old pulse leaves
+        count = self._n + np.arange(n)                   # pulses fed before each new one
+        j = count % self.window
+        full = count >= self.window                      # slots whose old pulse leaves
         if full.any():
             self._sum -= self._s[j[full]].sum(axis=0)
         self._sum += xs.sum(axis=0)
