@@ -9,6 +9,8 @@ bound, no false event, never a wrong direction claimed.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -70,6 +72,10 @@ SCENES = {
     # (it was read as a stop and a start, bench_day)
     "slow-reversal": ("ccw:0.45:6,cw:0.55:16~15", 22, ["reversed"]),
     "speed-steps": ("ccw:0.25:8,ccw:0.5:10~3,ccw:0.3:10~2", 28, []),
+    # 0.12 Hz/s from a slow 0.2 Hz: the blade turns round zero out of view and no answer
+    # shows the slowing (read as a stop at 9.21 s and a start at 9.91 s before the wait
+    # for a reversal out of view; a simulated hour had one such)
+    "brisk-reversal-of-a-slow-fan": ("ccw:0.2:6.5,cw:0.4:12~5", 18.5, ["reversed"]),
 }
 # the issue's targets (measured on these scenes, seeds 3-5: started 0.15-0.24 s, stopped
 # 1.9-2.2 s, reversed within 0.05 s of the truth; an instant stop of a blade resting out
@@ -395,6 +401,36 @@ def test_without_a_slowing_line_a_stop_needs_only_its_confirmation():
     assert t is not None and 4.7 - 1e-9 <= t < 4.9
 
 
+def test_a_slow_fans_sudden_quiet_is_waited_for_as_a_reversal_out_of_view():
+    """Quiet right after a steady 0.2 Hz, no slowing seen: braked as hard as a fan can be
+    (0.3 Hz/s) it was at zero 0.2/0.3 s after its last answer (3.9 s), having turned
+    0.2^2/0.6 = 0.067 of a revolution, inside half a blade period (0.125 of 4 blades): a
+    reversal may have turned there unseen. Back at 0.1 Hz at 0.05 Hz/s 2 s later, seen
+    1.3 s after that: no stop before 3.9 + 0.667 + 2 + 1.3 = 7.867 s, or, with the
+    default cap, 3 s after the last answer (6.9 s)."""
+    for guard_s, due in ((10.0, 3.9 + 0.2 / 0.3 + 2.0 + 1.3), (3.0, 6.9)):
+        tr = Transitions(TransitionSettings(reversal_guard_s=guard_s), 10.0)
+        for i in range(40):
+            tr.step(i * 0.1, i, _d("same", 0.2))
+        t = _stop_time(tr, 4.0, 40)
+        assert t is not None and due - 1e-9 <= t < due + 0.1 + 1e-9, (guard_s, t)
+
+
+@pytest.mark.parametrize("rate, held", [(0.27, True), (0.28, False)])
+def test_only_a_fan_that_could_reach_zero_out_of_view_holds_a_sudden_quiet(rate, held):
+    """The edge: braked at 0.3 Hz/s a fan turns r^2 / 0.6 of a revolution to zero, which
+    fits into half a blade period of 4 blades (0.125) below r = sqrt(0.075) = 0.2739 Hz.
+    A faster fan would have been seen slowing: its sudden quiet is an abrupt stop,
+    called after stop_confirm_s (0.75 s)."""
+    assert 0.27 < math.sqrt(2 * 0.3 * 0.125) < 0.28
+    tr = Transitions(TransitionSettings(reversal_guard_s=10.0), 10.0)
+    for i in range(40):
+        tr.step(i * 0.1, i, _d("same", rate))
+    t = _stop_time(tr, 4.0, 40)
+    assert t is not None
+    assert (t > 7.0) == held, t
+
+
 def test_a_line_that_reaches_zero_only_much_later_does_not_hold_a_stop():
     """Answers sagging at 0.02 Hz/s from 0.45 Hz (a track breaking up after an abrupt
     stop) put zero 20 s off: the rest seen now is not the end of that line, and the stop
@@ -410,9 +446,10 @@ def test_a_lone_answer_of_the_old_direction_does_not_restart_a_stop():
     lock on a fan at rest): published unknown, it pauses the count of eight quiet answers
     as an unknown answer would (4.8 s, one answer after 4.7 s without it; restarted, the
     count would end at 5.1 s); two in a row (4.3, 4.4 s) are the fan turning again: the
-    count restarts after them (4.5 + 0.7 = 5.2 s)."""
+    count restarts after them (4.5 + 0.7 = 5.2 s). (Without the wait for a reversal out
+    of view, blind_turn_rev 0, which the answers at 0.13 Hz would start: the count alone.)"""
     def run(blips):
-        tr = Transitions(TransitionSettings(reversal_guard_s=10.0), 10.0)
+        tr = Transitions(TransitionSettings(reversal_guard_s=10.0, blind_turn_rev=0.0), 10.0)
         for i in range(40):
             tr.step(i * 0.1, i, _d("same", 0.3))
         t, states = _quiet_with(tr, 4.0, 40, {j: _d("same", 0.13) for j in blips}, 7.0)

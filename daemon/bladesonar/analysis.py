@@ -417,7 +417,8 @@ def decide_settings(cfg: Config) -> DecideSettings:
 def transition_settings(cfg: Config) -> TransitionSettings:
     t = cfg.tracking
     return TransitionSettings(rate_floor_hz=t.rate_floor_hz, confirm_s=t.confirm_s,
-                              max_reversal_hz_s=t.max_reversal_hz_s)
+                              max_reversal_hz_s=t.max_reversal_hz_s,
+                              blind_turn_rev=0.5 / cfg.scene.blades)
 
 
 def new_aligner(cfg: Config, ref: Reference) -> PulseAligner:

@@ -97,6 +97,11 @@ class TransitionSettings:
     #: mirror-line lock had held 0.5-0.6 s; a fan reversed with no ramp at all (which no
     #: real fan does, but a test bench might) is reversed for good
     reversal_hold_s: float = 1.0
+    #: the most of a revolution a blade can turn out of view (half a blade period: the
+    #: reference's table is flat over about that much of it, docs/dynamics.md): a fan
+    #: last seen turning slower than it could have been braked to zero (at
+    #: ``max_reversal_hz_s``) within that turn may have reversed unseen
+    blind_turn_rev: float = 0.125
 
 
 @dataclass(frozen=True)
@@ -150,6 +155,7 @@ class Transitions:
         self._seen: deque[tuple[float, float]] = deque()   # (t, rate) turning, well above
         self._seen_kind: str | None = None
         self._last_turning = -math.inf       # the last turning answer (s)
+        self._last_turning_hz = 0.0          # and its |rate| (Hz)
         self._known_seen: tuple[float, float] | None = None   # (t, rate), known direction
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
@@ -186,7 +192,7 @@ class Transitions:
         if cand in ("+", "-") and (cand == self.known or self.known not in ("+", "-")):
             # only the known direction renews the cap of the wait for a reversal: a new
             # lock on a fan at rest claiming the other way for 0.2 s held a stop to 3.2 s
-            self._last_turning = float(t_s)
+            self._last_turning, self._last_turning_hz = float(t_s), _rate(d)
         if cand in ("+", "-"):
             if cand == self.known:
                 self._see_known(t_s, _rate(d))
@@ -216,8 +222,11 @@ class Transitions:
             if self._cand_n < need or guard is not None or soonest is not None:
                 what = "a stop" if cand == "stopped" else f"turning {d.direction}"
                 if guard is not None:
-                    why = (f"confirming a stop: a fan slowing at {self._slowing_hz_s:.3f} "
-                           f"Hz/s may be reversing through zero (until {guard:.1f} s)")
+                    how = (f"slowing at {self._slowing_hz_s:.3f} Hz/s"
+                           if self._zero_by is not None else
+                           f"last seen at {self._last_turning_hz:.3f} Hz")
+                    why = (f"confirming a stop: a fan {how} may be reversing through zero "
+                           f"(until {guard:.1f} s)")
                 elif soonest is not None and self._known_seen is not None:
                     why = (f"confirming {what}: {t_s - self._known_seen[0]:.2f} s after "
                            f"{self._known_seen[1]:.3f} Hz the other way is sooner than a "
@@ -307,18 +316,32 @@ class Transitions:
         3 s of rest, and the slope is an estimate), and not at all for a line that
         reaches zero more than ``reversal_guard_s`` from now. The fan was last seen
         turning when the known direction was last answered: answers the other way not
-        yet confirmed neither end the wait nor renew its cap."""
+        yet confirmed neither end the wait nor renew its cap.
+
+        A fan whose slowing was not seen at all (its answers ended before they gave a
+        slope: 0.2 Hz reversed at 0.12 Hz/s left 0.4 s of them above three times the
+        floor) is waited for as if it were braked as hard as a fan can be, provided
+        that it could have come to zero within ``blind_turn_rev`` of a turn, i.e. out of
+        view: a reversal whose turn lay in the blind part of the blade period had read
+        as a stop and a start (a simulated hour). A faster fan would have been seen
+        slowing, so its sudden quiet is a stop (an abrupt one) and is not held."""
         st = self.settings
-        if self._zero_by is None or self.known not in ("+", "-"):
+        if self.known not in ("+", "-"):
             return None
-        if self._zero_by > t_s + st.reversal_guard_s:
+        zero_by, slowing = self._zero_by, self._slowing_hz_s
+        if zero_by is None:
+            r, brake = self._last_turning_hz, st.max_reversal_hz_s
+            if not (brake > 0 and r * r < 2.0 * brake * st.blind_turn_rev):
+                return None
+            zero_by, slowing = self._last_turning + r / brake, 0.0
+        if zero_by > t_s + st.reversal_guard_s:
             # the line would reach zero only well after now: it does not explain a fan
             # at rest already (an abrupt stop whose last answers sagged as the track
             # broke up: 0.016 Hz/s from 0.45 Hz held a stop back by 2.7 s)
             return None
         visible = st.change_factor * st.rate_floor_hz
-        comeback = max(self._slowing_hz_s, st.min_spinup_hz_s)
-        until = self._zero_by + visible / comeback + st.meter_lag_s
+        comeback = max(slowing, st.min_spinup_hz_s)
+        until = zero_by + visible / comeback + st.meter_lag_s
         until = min(until, self._last_turning + st.reversal_guard_s)
         return until if t_s < until else None
 
