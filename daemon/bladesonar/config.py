@@ -137,7 +137,10 @@ class TrackingSettings:
                                    "through zero to the other: a reversal claimed sooner "
                                    "after the last answer of the old direction waits "
                                    "until it could be true (a track lost and taken up "
-                                   "on the mirror of the blade pattern); 0: no wait",
+                                   "on the mirror of the blade pattern), and a fan "
+                                   "last seen slower than it could be braked to zero "
+                                   "within half a blade period is not called stopped at "
+                                   "once (it may be reversing out of view); 0: no wait",
                                    lo=0.0, hi=100.0, unit="Hz/s")
     decide_every: int = opt(4, "pulses between decisions (matching and tracking run on every "
                             "pulse): 4 at 34 pulses/s adds at most 0.12 s to an event and "
