@@ -26,6 +26,7 @@ from bladesonar.sim.score import (
     score_events,
     score_gaps,
     score_state,
+    true_time,
     truth_events,
 )
 from bladesonar.transitions import Transitions, TransitionSettings
@@ -33,6 +34,8 @@ from bladesonar.transitions import Transitions, TransitionSettings
 pytestmark = pytest.mark.slow   # simulated scenes with transitions: outside the fast tier
 
 SCENE = "config/scenes/paper-room.yaml"
+#: the issue's test condition; stream times are scored at the schedule's (true) time
+DRIFT_PPM = 40.0
 
 
 @pytest.fixture(scope="module")
@@ -49,14 +52,16 @@ def reference(scene):
 def _run(scene, ref, schedule, seconds, seed=3, snr_db=10.0):
     cfg = config.Config()
     x, _ = simulate(scene, cfg, seconds, schedule=schedule, seed=seed, snr_db=snr_db,
-                    drift_ppm=40.0)
+                    drift_ppm=DRIFT_PPM)
     summary, rows = analyze(x, cfg, ref, track=True)
     sch = parse(schedule)
     score = score_events(truth_events(sch, seconds),
-                         [(r["event"], r["t_s"]) for r in rows if r["event"]])
+                         [(r["event"], true_time(r["t_s"], DRIFT_PPM))
+                          for r in rows if r["event"]])
     for r in rows:
-        true = float(sch.rate_at(np.array([r["t_s"]]))[0])
-        score_state(score, r["t_s"], true, r["direction"], r["rotation"], r["rate_hz"],
+        t = true_time(r["t_s"], DRIFT_PPM)
+        true = float(sch.rate_at(np.array([t]))[0])
+        score_state(score, t, true, r["direction"], r["rotation"], r["rate_hz"],
                     ref_sign=1)
     return score, rows, summary
 
@@ -663,6 +668,24 @@ def test_report_transitions_trials_at_high_snr(repo_root, snr_db, seed):
                                     drift_ppm=grid.transitions_drift_ppm)
     rows, _ = rr._tracked(rr._at_snr(clean, unit, p_fan, snr_db), base, ref)
     score = score_events(truth_events(parse(sched), total),
-                         [(r["event"], r["t_s"]) for r in rows if r["event"]])
+                         [(r["event"], true_time(r["t_s"], grid.transitions_drift_ppm))
+                          for r in rows if r["event"]])
     assert score.false == [] and score.missed == []
     assert all(lat <= LATENCY[e.kind] for e, lat in score.hits)
+
+
+def test_stream_time_is_scored_at_the_fans_time(scene):
+    """The simulator's capture clock runs fast by the drift: against its own truth (each
+    pulse's coupling edge in the capture, and its true emission time), a moment at
+    stream time t (samples / nominal rate) is true_time(t) of the schedule, to well
+    under a sample; the stream time itself is 40 ppm ahead (0.144 s in an hour)."""
+    cfg = config.Config()
+    _, truth = simulate(scene, cfg, 60.0, schedule="ccw:0.45:60", seed=2, snr_db=10.0,
+                        drift_ppm=DRIFT_PPM)
+    pulses = truth["pulses"]
+    sample = np.array([p["sample"] for p in pulses], dtype=np.float64)
+    emitted = np.array([p["time_s"] for p in pulses], dtype=np.float64)
+    stream = sample / cfg.audio.sample_rate
+    assert np.max(np.abs(true_time(stream, DRIFT_PPM) - emitted)) < 0.1 / cfg.audio.sample_rate
+    late = stream[-1] - emitted[-1]
+    assert abs(late - 60.0 * DRIFT_PPM * 1e-6) < 1e-3, late

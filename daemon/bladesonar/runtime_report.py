@@ -53,7 +53,7 @@ from .errors import BladesonarError
 from .sim.nuisances import PRESETS, Nuisances
 from .sim.render import Simulator
 from .sim.schedule import parse as parse_schedule
-from .sim.score import score_events, truth_events
+from .sim.score import score_events, true_time, truth_events
 
 ALIAS_NOTE = "|rate| >= PRF / (2 K): the blade phase steps half a period or more per pulse"
 
@@ -429,7 +429,9 @@ def _run_transitions(job: Job, sc, base, ref: Reference, grid: Grid) -> list[dic
     for snr in job.snrs_db:
         x = _at_snr(clean, unit, p_fan, snr)
         rows, cpu = _tracked(x, base, ref)
-        events = [(r["event"], r["t_s"]) for r in rows if r.get("event")]
+        # stream times to the schedule's (the capture clock runs fast by the drift)
+        events = [(r["event"], true_time(r["t_s"], grid.transitions_drift_ppm))
+                  for r in rows if r.get("event")]
         rec = dict(family=job.family, scene=job.scene, blades=job.blades, ratio=job.ratio,
                    true_ratio=ratio, rate_hz=abs(ratio) * grid.ref_rate_hz, snr_db=snr,
                    seed=job.seed, schedule=sched, drift_ppm=grid.transitions_drift_ppm,
