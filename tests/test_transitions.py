@@ -421,6 +421,56 @@ def test_a_slow_fans_sudden_quiet_is_waited_for_as_a_reversal_out_of_view():
         assert t is not None and due - 1e-9 <= t < due + 0.1 + 1e-9, (guard_s, t)
 
 
+@pytest.mark.parametrize("slow_answers", [True, False])
+def test_a_slow_last_answer_holds_a_stop_whatever_a_lagging_line_says(slow_answers):
+    """Answers sagging at 0.02 Hz/s from 0.34 Hz (1-3 s: their line reaches zero at 18 s,
+    no rest now), then two at 0.06 Hz (3.1, 3.2 s: too slow for the line) and quiet:
+    the fan may have turned round zero out of view. Braked at 0.3 Hz/s it was at zero
+    by 3.4 s, back at 0.1 Hz (0.05 Hz/s) 2 s later and seen 1.3 s after that (6.7 s),
+    capped 3 s after its last answer: no stop before 6.2 s. Without the slow answers the
+    last one was 0.30 Hz, beyond the reach of a turn out of view (0.274 Hz): an abrupt
+    stop, called stop_confirm_s after the quiet begins (3.1 s)."""
+    tr = Transitions(TransitionSettings(), 10.0)
+    for i in range(10):
+        tr.step(i * 0.1, i, _d("same", 0.34))
+    k = _slow_down(tr, 1.0, 3.0, 0.34, -0.02, pulse=10)
+    t0 = 3.1
+    if slow_answers:
+        for j in range(2):
+            tr.step(3.1 + 0.1 * j, k + j, _d("same", 0.06))
+        k, t0 = k + 2, 3.3
+    t = _stop_time(tr, t0, k)
+    assert t is not None
+    if slow_answers:
+        assert 6.2 - 1e-9 <= t < 6.4, t
+    else:
+        assert 3.8 - 1e-9 <= t < 4.0, t
+
+
+@pytest.mark.parametrize("run, held", [(3, False), (12, True)])
+def test_only_answers_that_followed_the_fan_hold_a_sudden_quiet(run, held):
+    """A steady 0.3 Hz (beyond a turn out of view), 1 s of unknown, then answers of the
+    same direction at 0.12 Hz and quiet from their end. Three of them (0.3 s: a new lock
+    on a fan already at rest claiming the old direction) are not a fan followed down to
+    0.12 Hz: the stop comes stop_confirm_s after the quiet begins. Twelve (1.2 s,
+    followed_s 1.0) are: braked at 0.3 Hz/s the fan was at zero 0.4 s after the last
+    one, and the wait runs to the cap, 3 s after it."""
+    tr = Transitions(TransitionSettings(), 10.0)
+    for i in range(30):
+        tr.step(i * 0.1, i, _d("same", 0.3))
+    for i in range(30, 40):
+        tr.step(i * 0.1, i, _d("unknown", 0.3))
+    for i in range(40, 40 + run):
+        tr.step(i * 0.1, i, _d("same", 0.12))
+    last = (40 + run - 1) * 0.1
+    t = _stop_time(tr, last + 0.1, 40 + run)
+    assert t is not None
+    if held:
+        assert last + 3.0 - 1e-9 <= t < last + 3.2, (t, last)
+    else:
+        assert last + 0.8 - 1e-9 <= t < last + 1.0, (t, last)
+
+
 @pytest.mark.parametrize("rate, held", [(0.27, True), (0.28, False)])
 def test_only_a_fan_that_could_reach_zero_out_of_view_holds_a_sudden_quiet(rate, held):
     """The edge: braked at 0.3 Hz/s a fan turns r^2 / 0.6 of a revolution to zero, which

@@ -102,6 +102,11 @@ class TransitionSettings:
     #: last seen turning slower than it could have been braked to zero (at
     #: ``max_reversal_hz_s``) within that turn may have reversed unseen
     blind_turn_rev: float = 0.125
+    #: how long (s) the answers up to that last one must have followed the fan without a
+    #: break for it to count: new locks on a fan already at rest claimed the old
+    #: direction for 0.1-0.4 s after a stretch of unknown, and a wait from them held
+    #: two stops to 3.4-3.55 s after rest (a simulated four-hour day)
+    followed_s: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -156,6 +161,7 @@ class Transitions:
         self._seen_kind: str | None = None
         self._last_turning = -math.inf       # the last turning answer (s)
         self._last_turning_hz = 0.0          # and its |rate| (Hz)
+        self._run_from = -math.inf           # the start of its unbroken run of answers (s)
         self._known_seen: tuple[float, float] | None = None   # (t, rate), known direction
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
@@ -192,6 +198,8 @@ class Transitions:
         if cand in ("+", "-") and (cand == self.known or self.known not in ("+", "-")):
             # only the known direction renews the cap of the wait for a reversal: a new
             # lock on a fan at rest claiming the other way for 0.2 s held a stop to 3.2 s
+            if prev != cand:
+                self._run_from = float(t_s)
             self._last_turning, self._last_turning_hz = float(t_s), _rate(d)
         if cand in ("+", "-"):
             if cand == self.known:
@@ -223,7 +231,8 @@ class Transitions:
                 what = "a stop" if cand == "stopped" else f"turning {d.direction}"
                 if guard is not None:
                     how = (f"slowing at {self._slowing_hz_s:.3f} Hz/s"
-                           if self._zero_by is not None else
+                           if self._zero_by is not None
+                           and self._zero_by <= t_s + self.settings.reversal_guard_s else
                            f"last seen at {self._last_turning_hz:.3f} Hz")
                     why = (f"confirming a stop: a fan {how} may be reversing through zero "
                            f"(until {guard:.1f} s)")
@@ -320,25 +329,30 @@ class Transitions:
 
         A fan whose slowing was not seen at all (its answers ended before they gave a
         slope: 0.2 Hz reversed at 0.12 Hz/s left 0.4 s of them above three times the
-        floor) is waited for as if it were braked as hard as a fan can be, provided
-        that it could have come to zero within ``blind_turn_rev`` of a turn, i.e. out of
-        view: a reversal whose turn lay in the blind part of the blade period had read
-        as a stop and a start (a simulated hour). A faster fan would have been seen
-        slowing, so its sudden quiet is a stop (an abrupt one) and is not held."""
+        floor), or whose line reaches zero only well after now, is waited for as if it
+        were braked as hard as a fan can be, provided that it could have come to zero
+        within ``blind_turn_rev`` of a turn, i.e. out of view (a reversal whose turn lay
+        in the blind part of the blade period had read as a stop and a start in a
+        simulated hour), and that its answers followed it without a break for
+        ``followed_s`` up to the last one. A faster fan would have been seen slowing, so
+        its sudden quiet is a stop (an abrupt one) and is not held."""
         st = self.settings
         if self.known not in ("+", "-"):
             return None
         zero_by, slowing = self._zero_by, self._slowing_hz_s
-        if zero_by is None:
+        if zero_by is None or zero_by > t_s + st.reversal_guard_s:
+            # no line, or one that would reach zero only well after now: it does not
+            # explain a fan at rest already (an abrupt stop whose last answers sagged as
+            # the track broke up: 0.016 Hz/s from 0.45 Hz held a stop back by 2.7 s).
+            # But a fan last answered slowly enough may have reached zero and turned
+            # round out of view: the answers that gave the line lag a brisk slowing (a
+            # 0.23 Hz fan reversed at 0.08 Hz/s was answered down to 0.05 Hz while the
+            # line of those above 0.15 Hz put zero 6 s off)
             r, brake = self._last_turning_hz, st.max_reversal_hz_s
-            if not (brake > 0 and r * r < 2.0 * brake * st.blind_turn_rev):
+            if not (brake > 0 and r * r < 2.0 * brake * st.blind_turn_rev) \
+                    or self._last_turning - self._run_from < st.followed_s:
                 return None
             zero_by, slowing = self._last_turning + r / brake, 0.0
-        if zero_by > t_s + st.reversal_guard_s:
-            # the line would reach zero only well after now: it does not explain a fan
-            # at rest already (an abrupt stop whose last answers sagged as the track
-            # broke up: 0.016 Hz/s from 0.45 Hz held a stop back by 2.7 s)
-            return None
         visible = st.change_factor * st.rate_floor_hz
         comeback = max(slowing, st.min_spinup_hz_s)
         until = zero_by + visible / comeback + st.meter_lag_s
