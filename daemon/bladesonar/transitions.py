@@ -231,8 +231,7 @@ class Transitions:
                 what = "a stop" if cand == "stopped" else f"turning {d.direction}"
                 if guard is not None:
                     how = (f"slowing at {self._slowing_hz_s:.3f} Hz/s"
-                           if self._zero_by is not None
-                           and self._zero_by <= t_s + self.settings.reversal_guard_s else
+                           if self._line_zero(t_s) is not None else
                            f"last seen at {self._last_turning_hz:.3f} Hz")
                     why = (f"confirming a stop: a fan {how} may be reversing through zero "
                            f"(until {guard:.1f} s)")
@@ -315,6 +314,14 @@ class Transitions:
             else:
                 self._zero_by = None
 
+    def _line_zero(self, t_s: float) -> float | None:
+        """When the slowing line reaches zero, if that can explain a fan at rest by
+        ``t_s``; None without a line, or for one that reaches zero more than
+        ``reversal_guard_s`` from now (an abrupt stop whose last answers sagged as the
+        track broke up: 0.016 Hz/s from 0.45 Hz held a stop back by 2.7 s)."""
+        z = self._zero_by
+        return z if z is not None and z <= t_s + self.settings.reversal_guard_s else None
+
     def _reversal_guard(self, t_s: float) -> float | None:
         """Until when a stop must wait for a slowing fan to show a reversal (None: no
         wait): the time it would take, after zero, to reach the rate a new direction
@@ -339,15 +346,13 @@ class Transitions:
         st = self.settings
         if self.known not in ("+", "-"):
             return None
-        zero_by, slowing = self._zero_by, self._slowing_hz_s
-        if zero_by is None or zero_by > t_s + st.reversal_guard_s:
-            # no line, or one that would reach zero only well after now: it does not
-            # explain a fan at rest already (an abrupt stop whose last answers sagged as
-            # the track broke up: 0.016 Hz/s from 0.45 Hz held a stop back by 2.7 s).
-            # But a fan last answered slowly enough may have reached zero and turned
-            # round out of view: the answers that gave the line lag a brisk slowing (a
-            # 0.23 Hz fan reversed at 0.08 Hz/s was answered down to 0.05 Hz while the
-            # line of those above 0.15 Hz put zero 6 s off)
+        zero_by, slowing = self._line_zero(t_s), self._slowing_hz_s
+        if zero_by is None:
+            # no slowing line that explains a rest now; but a fan last answered slowly
+            # enough may have reached zero and turned round out of view: the answers
+            # that gave the line lag a brisk slowing (a 0.23 Hz fan reversed at 0.08
+            # Hz/s was answered down to 0.05 Hz while the line of those above 0.15 Hz
+            # put zero 6 s off)
             r, brake = self._last_turning_hz, st.max_reversal_hz_s
             if not (brake > 0 and r * r < 2.0 * brake * st.blind_turn_rev) \
                     or self._last_turning - self._run_from < st.followed_s:
