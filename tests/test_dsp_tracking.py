@@ -446,3 +446,78 @@ def test_the_written_out_three_state_steps_are_the_matrix_forms():
         assert np.allclose(Pu, want_P, rtol=1e-9, atol=1e-18)
         assert np.array_equal(Pu, Pu.T)
         assert np.all(np.linalg.eigvalsh(Pu) > -1e-18)
+
+
+def _hz(hz):
+    """A rate in Hz as blade cycles per pulse (4 blades, 34 pulses/s)."""
+    return hz * 4 / 34.0
+
+
+def _set_up(track, fol, evidence, sd=0.04):
+    """A locked tracker 15 pulses into a coast (its last update at pulse 86): the
+    constant-rate track predicting phase ``track[0]`` at pulse 101 at ``track[1]`` Hz
+    (rate sd 0.016 Hz), the follower predicting ``fol[0]`` at ``fol[1]`` Hz (rate sd
+    ``fol[2]`` Hz, rate change sd 0.1 Hz/s), both with a phase sd of ``sd`` cycles at
+    pulse 86; ``evidence`` the follower's log likelihood ratio. No process noise, so the
+    prediction to pulse 101 is exact."""
+    tr = Tracker(TrackerSettings(max_rate=0.45, q_rate=0.0))
+    (tz, thz), (fz, fhz, fsd) = track, fol
+    tr.x = np.array([np.mod(tz - 15 * _hz(thz), 1.0), _hz(thz)])
+    tr.P = np.diag([sd ** 2, _hz(0.016) ** 2])
+    tr.fx = np.array([np.mod(fz - 15 * _hz(fhz), 1.0), _hz(fhz), 0.0])
+    tr.fP = np.diag([sd ** 2, _hz(fsd) ** 2, (_hz(0.1) / 34.0) ** 2])
+    tr.evidence, tr.last_k, tr.start_k, tr.clear_credit = evidence, 86, 40, 5
+    return tr
+
+
+def test_a_follower_with_a_wide_gate_refuses_a_match_half_a_blade_period_off():
+    """The state of a simulated day's spin-up after a reversal, at the first clear match
+    after a coast through the blind half of the blade period: the follower, right at
+    0.21 Hz and reported (weight 1), had a phase sd of 0.155 cycles; the constant-rate
+    track lagged at 0.055 Hz. The match (quality 0.86) lay 0.425 cycles off the
+    follower's prediction and 0.20 off the track's: within the track's gate (4 sd of
+    0.052), and within four of the follower's wide ones, so both took it, and the
+    follower jumped to about 0.4 Hz (the Kalman gain of that update, computed here). Half
+    a blade period off, a match is as near the next blade's phase as this one's: no
+    match beyond MAX_INNOVATION is taken, and the follower, which decides while it is
+    reported, refuses it: an outlier, no state changed."""
+    from bladesonar.dsp.tracking import MAX_INNOVATION, kalman_predict
+    tr = _set_up((0.652, 0.055), (0.025, 0.21, 0.077), evidence=10.0)
+    z, r = 0.45, tr.r(0.86)
+    xp, Pp = kalman_predict(tr.x, tr.P, 0.0, 15)
+    nu, s = innovation(xp, Pp, z, r)
+    assert nu == pytest.approx(-0.202) and nu * nu < 16 * s    # the track's gate takes it
+    fxp, fPp = kalman_predict(tr.fx, tr.fP, 0.0, 15)
+    fnu, fs = innovation(fxp, fPp, z, r)
+    assert fnu == pytest.approx(0.425) and fnu * fnu < 16 * fs  # and the follower's
+    jumped, _ = kalman_update(fxp, fPp, z, r)
+    assert jumped[1] > _hz(0.35)                      # taken, the follower would jump
+    assert 0.425 > MAX_INNOVATION
+    x0, fx0 = tr.x.copy(), tr.fx.copy()
+    state = tr.update(101, z, 0.86)
+    assert state.outlier and tr.outliers == 1
+    assert tr.x[1] == x0[1] and tr.fx[1] == fx0[1] and tr.rate[0] == pytest.approx(_hz(0.21))
+    # the next matches on the follower's line are taken, and the track takes its line
+    for j in range(2, 6):
+        tr.update(100 + j, float(np.mod(0.025 + _hz(0.21) * (j - 1), 1.0)), 0.8)
+    assert tr.outliers == 1 and tr.syncs == 1
+    assert abs(tr.rate[0] - _hz(0.21)) < _hz(0.01)
+
+
+@pytest.mark.parametrize("evidence, followed", [(1.73, True), (-1.73, False)])
+def test_a_match_the_reported_follower_expects_is_no_sign_against_the_track(evidence,
+                                                                            followed):
+    """Just past a reversal in a simulated day the follower was right (0.24 Hz, the
+    reported rate, weight 0.85) and the track lagged at 0.17 Hz: matches on the
+    follower's line fell outside the track's gate, and counted as rejected they made a
+    re-check move the track to a line at 0.92 Hz fitted through them and two matches at
+    the mirror angle (2 s of unknown). Such a match is still an outlier for the track
+    (the weight is under SYNC_WEIGHT, so the track does not take the follower's line),
+    but the re-check counts it as accepted while the follower is reported (weight
+    0.85), not while the track is (0.15)."""
+    from bladesonar.dsp.tracking import SYNC_WEIGHT
+    assert 0.5 < 1 / (1 + np.exp(-1.73)) < SYNC_WEIGHT
+    tr = _set_up((0.707, 0.17), (0.554, 0.24, 0.03), evidence=evidence, sd=0.03)
+    state = tr.update(101, 0.49, 0.8)
+    assert state.outlier and tr.syncs == 0
+    assert tr._accepted[-1] == (pytest.approx(0.64), followed)

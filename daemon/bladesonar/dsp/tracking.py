@@ -8,9 +8,10 @@ positive definite in stiff cases (tiny process noise, huge measurement noise, lo
 
 Outliers: an innovation outside ``gate_sigma`` standard deviations, or larger than the
 slew bound (the phase cannot move further than the largest allowed rate beyond what was
-predicted), is skipped and counted; after ``reacquire_after`` outliers in a row the filter
-re-initialises from the recent matches. A track that has shown its line coasts through
-weak matches instead (no blade in view: :meth:`Tracker._coasts`).
+predicted) or than ``MAX_INNOVATION``, is skipped and counted; after ``reacquire_after``
+outliers in a row the filter re-initialises from the recent matches. A track that has
+shown its line coasts through weak matches instead (no blade in view:
+:meth:`Tracker._coasts`).
 
 Initialisation finds the rate sign robustly by circular regression: over candidate rates
 w within the slew bound, the coherence ``|sum_k q_k exp(2 pi i (z_k - w k))| / sum q_k`` of
@@ -20,7 +21,9 @@ the filter stays unlocked (no answer) instead of guessing.
 Beside the track a *rate follower* (three states: phase, rate, rate change) takes the
 matches the track accepts; the reported rate is the follower's while the recent matches
 favour its model (a likelihood ratio with forgetting), so ramps are followed through the
-blind part of a blade period without the constant-rate model's lag. A track that the
+blind part of a blade period without the constant-rate model's lag. While the follower's
+rate is reported, a match it refuses is an outlier for both; while the matches favour it
+clearly, the track takes its line for a match only the follower expects. A track that the
 recent good matches mostly reject is re-checked against the best line of those matches
 (:meth:`Tracker.recheck`).
 """
@@ -37,7 +40,11 @@ import numpy as np
 #: Pulses over which the track and the rate follower are compared (forgetting).
 FOLLOW_MEMORY = 24.0
 #: Follower weight above which the track takes the follower's line for a match only the
-#: follower expects (Tracker._follower_takes).
+#: follower expects (Tracker._follower_takes). Not the 1/2 at which the follower's rate
+#: is reported: near rest the follower carries a spin-down's deceleration through zero,
+#: and a track taking its line there went on to -0.3 Hz with the fan at rest (a false
+#: 'reversed'); just after a lock the larger uncertainty it takes with the line had the
+#: alias check move a right track to its mirror (a reversal confirmed 2.7 s late).
 SYNC_WEIGHT = 0.9
 #: Clear matches (quality min_info or more) the track must have rejected among the recent
 #: ones before it is re-checked (Tracker.recheck).
@@ -61,6 +68,11 @@ COAST_STREAK = 3
 #: follower whose rate change had the wrong sign through a reversal (a stop and a start
 #: instead of a reversal in a simulated hour).
 COAST_CREDIT = 5
+#: Largest innovation a match may have to be taken (blade periods), however wide the gate:
+#: after a coast through a slow fan's blind half-period the gate of four standard
+#: deviations spans more than the whole circle, and a match half a period off (a mirror
+#: angle) is as near the next blade's phase as this one's.
+MAX_INNOVATION = 0.25
 #: Matches under this quality are the weak ones a track coasts through: with no blade in
 #: view every pulse matches one standing phase at 0.01-0.1.
 COAST_BELOW = 0.1
@@ -418,6 +430,7 @@ class Tracker:
     _recent: deque[tuple[int, float, float]] = field(default_factory=deque)
     # (weight, accepted) of _recent
     _accepted: deque[tuple[float, bool]] = field(default_factory=deque)
+    _followed: bool = False      # the last match was one the reported follower expected
 
     def __post_init__(self) -> None:
         self._recent = deque(maxlen=self.settings.init_pulses)
@@ -529,8 +542,10 @@ class Tracker:
 
     def _rejects(self, nu: float, s: float, slew: float) -> bool:
         """Whether an innovation ``nu`` (variance ``s``) lies outside the gate, or further
-        than the fastest line could move (``slew``, cycles)."""
-        return nu * nu > self.settings.gate_sigma ** 2 * s or abs(nu) > max(slew, 0.05)
+        than the fastest line could move (``slew``, cycles), or further than
+        ``MAX_INNOVATION`` whatever the gate."""
+        return nu * nu > self.settings.gate_sigma ** 2 * s or abs(nu) > max(slew, 0.05) \
+            or abs(nu) > MAX_INNOVATION
 
     def _follower_takes(self, z: float, r: float) -> bool:
         """Whether a match the track rejects is one the follower, clearly favoured by the
@@ -539,6 +554,19 @@ class Tracker:
             return False
         fnu, fs = innovation(self.fx, self.fP, z, r)
         return fnu * fnu <= self.settings.gate_sigma ** 2 * fs
+
+    def _follower_expects(self, z: float, r: float, slew: float) -> bool | None:
+        """Whether the follower, while its rate is the one reported (weight over 1/2,
+        :attr:`rate`), expects a match (within its own gate); None while it is not
+        reported. A match it refuses is not taken, whatever the lagging constant-rate
+        track says: at the edge of a slow fan's blind half-period a clear match at the
+        mirror angle lay 0.43 blade period off a follower right at 0.21 Hz; within the
+        track's gate, it was folded into both, and the follower jumped to 0.41 Hz (a
+        spin-up after a reversal, 0.7 s of unknown in a simulated day)."""
+        if self.fx is None or self.fP is None or self.follower_weight <= 0.5:
+            return None
+        fnu, fs = innovation(self.fx, self.fP, z, r)
+        return not self._rejects(fnu, fs, slew)
 
     def _follow_from_track(self) -> None:
         """(Re)start the follower on the track's line, its acceleration unknown up to the
@@ -709,7 +737,8 @@ class Tracker:
                 outlier = self._measure(int(k), z, quality)
         if self.x is not None:
             w = max(float(quality), 0.0)
-            self._accepted.append((w * w, not outlier))
+            self._accepted.append((w * w, not outlier or self._followed))
+            self._followed = False
         if self.x is None:
             return TrackState(int(k), float(z), float(quality), float("nan"), float("nan"),
                               float("nan"), False, outlier, self.coherence)
@@ -727,7 +756,12 @@ class Tracker:
         r = self.r(quality)
         nu, s = innovation(self.x, self.P, z, r)
         slew = st.max_rate + 3.0 * math.sqrt(max(float(self.P[1, 1]), 0.0))
-        if self._rejects(nu, s, slew) and self._follower_takes(z, r):
+        expected = self._follower_expects(z, r, slew)
+        refused = expected is False
+        # a match the reported follower expects is no sign against the track's line
+        # (Tracker.recheck) even when the lagging track rejects it
+        self._followed = bool(expected)
+        if not refused and self._rejects(nu, s, slew) and self._follower_takes(z, r):
             # the constant-rate track lags a ramp the follower is on: it takes the
             # follower's line instead of counting the match out (six in a row threw
             # the track away in the middle of spin-ups, and the follower with it)
@@ -736,7 +770,7 @@ class Tracker:
             self.P = 0.5 * (self.fP[:2, :2] + self.fP[:2, :2].T)
             self.syncs += 1
             nu, s = innovation(self.x, self.P, z, r)
-        if self._rejects(nu, s, slew):
+        if refused or self._rejects(nu, s, slew):
             self.outliers += 1
             self.outlier_run += 1
             if clear:
