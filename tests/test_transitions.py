@@ -775,3 +775,34 @@ def test_stream_time_is_scored_at_the_fans_time(scene):
     assert np.max(np.abs(true_time(stream, DRIFT_PPM) - emitted)) < 0.1 / cfg.audio.sample_rate
     late = stream[-1] - emitted[-1]
     assert abs(late - 60.0 * DRIFT_PPM * 1e-6) < 1e-3, late
+
+
+def test_a_speed_published_briefly_bounds_new_lines_at_a_multiple_of_itself(reference):
+    """Closed forms of the bound on new lines (PulseAnalyzer._bound_rate, in Hz): a speed
+    published for ANCHOR_TRUST_S (2 s) bounds at itself plus twice the steepest ramp
+    (0.3 Hz/s) over the time since plus twice the floor (0.1 Hz); one just published
+    (possibly a first answer on a wrong line, 1.8 times too slow) at UNTRUSTED_FACTOR
+    (2.5) times itself, and the lower of the two bounds. Just past a reversal in a
+    simulated day, 'reversed' at 0.21 Hz for 0.4 s, with the last trusted speed 0.09 Hz
+    3 s before: 0.09 + 0.9 + 0.1 = 1.09 Hz let a re-check take a line at 0.92 Hz; now
+    2.5 x 0.21 + 0.12 + 0.1 = 0.745 Hz."""
+    from bladesonar.analysis import ANCHOR_TRUST_S, UNTRUSTED_FACTOR, new_analyzer
+    cfg = config.Config()
+    an = new_analyzer(cfg, reference)
+    hz = float(reference.meta["rate_hz"]) / reference.cycles_per_pulse
+
+    def bound_at(t):
+        an._bound_rate(t)
+        return an.tracker.rate_bound * hz
+
+    an.state = _d("same", 0.09)
+    assert bound_at(10.0) == pytest.approx(0.09 + 0.1)
+    an.state = _d("reversed", 0.21)
+    assert bound_at(13.0) == pytest.approx(min(0.09 + 0.3 * 3 + 0.1, 2.5 * 0.21 + 0.1))
+    an.state = _d("unknown")
+    assert bound_at(13.4) == pytest.approx(2.5 * 0.21 + 0.3 * 0.4 + 0.1)
+    assert UNTRUSTED_FACTOR == 2.5 and ANCHOR_TRUST_S == 2.0
+    # published long enough, the speed is trusted and bounds at itself
+    an.state = _d("reversed", 0.3)
+    bound_at(20.0)
+    assert bound_at(22.0) == pytest.approx(0.3 + 0.1)

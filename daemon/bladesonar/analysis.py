@@ -357,6 +357,9 @@ HOLD_S = 600.0
 #: How long a turning state must have been published before its speed bounds new lines,
 #: s (_bound_rate).
 ANCHOR_TRUST_S = 2.0
+#: How many times its speed a turning state published for less than ANCHOR_TRUST_S may
+#: be off (_bound_rate): the wrong first answer above was 1.8 times too slow.
+UNTRUSTED_FACTOR = 2.5
 
 #: Largest range scale (c now / c at the reference) followed by rescaling: beyond it
 #: (about 17 degrees C) the reference no longer fits and the answer is unknown.
@@ -597,6 +600,7 @@ class PulseAnalyzer:
     _held_k: int = 0                             # the pulse the hold began
     #: (time, rate in Hz) of the last known state published (_bound_rate)
     _anchor: tuple[float, float] | None = None
+    _untrusted: tuple[float, float] | None = None   # (t, UNTRUSTED_FACTOR x speed)
     _known_dir: str | None = None               # the published direction, and since when
     _known_t: float = 0.0
 
@@ -887,15 +891,21 @@ class PulseAnalyzer:
             v = float(st.rate_hz or 0.0)
             # a speed above three times the floor bounds only once it has been published
             # for ANCHOR_TRUST_S: a first answer on a wrong line (near 1/16 blade period
-            # per pulse, 0.29 Hz for 0.53 Hz) would otherwise keep out the right one
+            # per pulse, 0.29 Hz for 0.53 Hz) would otherwise keep out the right one.
+            # Until then it bounds at UNTRUSTED_FACTOR times its speed: just past a
+            # reversal, published at 0.21 Hz, a re-check took a line at 0.92 Hz that
+            # the last trusted speed, 3 s old, let through (2 s of unknown)
             if v <= 3.0 * c.rate_floor_hz or t_s - self._known_t >= ANCHOR_TRUST_S:
-                self._anchor = (t_s, v)
-        if self._anchor is None:
-            tr.rate_bound = math.inf
-            return
-        t0, v0 = self._anchor
-        hz = v0 + 2.0 * c.max_ramp_hz_s * max(t_s - t0, 0.0) + 2.0 * c.rate_floor_hz
-        tr.rate_bound = self._cycles_per_pulse(hz)
+                self._anchor, self._untrusted = (t_s, v), None
+            else:
+                self._untrusted = (t_s, UNTRUSTED_FACTOR * v)
+        bound = math.inf
+        for got in (self._anchor, self._untrusted):
+            if got is not None:
+                t0, v0 = got
+                bound = min(bound, v0 + 2.0 * c.max_ramp_hz_s * max(t_s - t0, 0.0)
+                            + 2.0 * c.rate_floor_hz)
+        tr.rate_bound = self._cycles_per_pulse(bound) if math.isfinite(bound) else math.inf
 
     def _cycles_per_pulse(self, hz: float) -> float:
         """A rotation rate in Hz as the tracker's blade cycles per pulse (by the
