@@ -541,27 +541,6 @@ def test_past_the_zero_of_its_slowing_line_the_old_direction_needs_a_new_directi
     assert run(0.12) >= 5.6
 
 
-@pytest.mark.parametrize("at, due", [(3.3, 6.3), (3.6, 5.5)])
-def test_with_its_slowing_line_below_the_floor_the_old_direction_needs_a_new_directions_rate(
-        at, due):
-    """Slowing at 0.1 Hz/s, 0.4 Hz at 0 s to 0.15 Hz at 2.5 s: the line reaches zero at
-    4.0 s and is below the floor (0.05 Hz) from 3.5 s. Two 'same' answers at 0.09 Hz at
-    3.6-3.7 s (a new lock on a fan at rest, just before its line's zero) are under the
-    0.1 Hz a new direction needs and are not taken: the stop comes at the cap, 3 s after
-    the last answer above them (2.5 + 3 = 5.5 s). At 3.3-3.4 s, where the line is still
-    at 0.06-0.07 Hz, they are the fan followed down (the first published unknown, as a
-    lone answer amid a stop's confirmation): they renew the cap (3.4 + 3), and the wait
-    ends where the line says, 4.0 + 0.1/0.1 + 1.3 = 6.3 s."""
-    tr = Transitions(TransitionSettings(), 10.0)
-    k = _slow_down(tr, 0.0, 2.5, 0.4, -0.1)
-    j0 = int(round((at - 2.6) / 0.1))
-    fired, states = _quiet_with(tr, 2.6, k, {j0: _d("same", 0.09), j0 + 1: _d("same", 0.09)},
-                                8.6)
-    assert fired is not None and due - 1e-9 <= fired < due + 0.2, fired
-    taken = [s.direction for s in states[j0:j0 + 2]]
-    assert taken == (["unknown"] * 2 if at > 3.5 else ["unknown", "same"]), taken
-
-
 @pytest.mark.parametrize("run, due", [(7, 5.5), (12, 6.3)])
 def test_a_new_run_of_the_old_direction_near_zero_renews_the_cap_only_once_it_lasts(run, due):
     """The line of the test above (zero at 4.0 s, below the floor from 3.5 s), quiet from

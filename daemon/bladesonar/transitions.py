@@ -22,7 +22,7 @@ evidence has held for a while:
   a confident track at or above ``rate_floor_hz`` for ``confirm_s``; a *new* direction
   (a start, a reversal) needs ``change_factor`` times the floor, since the end of a
   spin-down leaves slow, shaky tracks of either sign; so does the old direction once the
-  line of a slowing fan is below the floor (new locks on the fan at rest). A reversal is
+  line of a slowing fan has reached zero (new locks on the fan at rest). A reversal is
   not taken sooner than a fan could make it: from the old direction's last rate, down
   through zero and up to the rate of the new direction's first answer, at
   ``max_reversal_hz_s`` (the first: a track follows a fan speeding up, and its later
@@ -175,7 +175,7 @@ class Transitions:
                 and not (d.rate_hz or 0.0) >= slow:
             # a new direction (a start, a reversal) is taken only from a rate clearly above
             # the floor: the end of a spin-down leaves slow, shaky tracks of either sign.
-            # So is the old one once its slowing line is below the floor: the fan is coming
+            # So is the old one once its slowing line has passed zero: the fan has come
             # to rest, and a new lock on it claimed 0.07-0.09 Hz the old way 1.3 s later
             d = replace(d, direction=Direction.UNKNOWN.value, rotation=None,
                         reason=f"turning slowly ({d.rate_hz or 0.0:.3f} Hz < {slow:g} Hz "
@@ -200,12 +200,16 @@ class Transitions:
         if cand in ("+", "-") and (cand == self.known or self.known not in ("+", "-")):
             # only the known direction renews the cap of the wait for a reversal: a new
             # lock on a fan at rest claiming the other way for 0.2 s held a stop to 3.2 s
-            if not (self._past_zero(t_s, cand)
+            if not (self._below_floor(t_s, cand)
                     and t_s - self._run_from < self.settings.followed_s):
                 # nor, once the slowing line is below the floor, does a new run of it
-                # until it has lasted followed_s: a new lock on a fan just at rest
-                # claimed 0.11-0.125 Hz the old way for 0.6 s, and the stop came 3.4 s
-                # after rest (a simulated four-hour day)
+                # until it has lasted followed_s: new locks on a fan just at rest
+                # claimed the old way at 0.097 Hz for 0.2 s and at 0.11-0.125 Hz for
+                # 0.6 s, and held stops to 3.05 and 3.4 s after rest (simulated
+                # four-hour days). Answers that followed the fan down do renew it:
+                # refused below twice the floor once the line was below the floor, they
+                # cut the wait short, and a reversal at 0.08 Hz/s read as a stop and a
+                # start
                 self._last_turning, self._last_turning_hz = float(t_s), _rate(d)
         if cand in ("+", "-"):
             if cand == self.known:
@@ -264,10 +268,14 @@ class Transitions:
         return d, fired
 
     def _past_zero(self, t_s: float, kind: str) -> bool:
+        """Whether answers of ``kind`` were last seen slowing on a line that has reached
+        zero by ``t_s``."""
+        return self._seen_kind == kind and self._zero_by is not None \
+            and float(t_s) > self._zero_by
+
+    def _below_floor(self, t_s: float, kind: str) -> bool:
         """Whether answers of ``kind`` were last seen slowing on a line that is below the
-        floor by ``t_s`` (not only past zero: a new lock on a fan just at rest claimed
-        0.097 Hz the old way 0.16 s before its line reached zero, and renewed the cap of
-        the wait for a reversal: a stop 3.05 s after rest in a simulated four hours)."""
+        floor by ``t_s``."""
         if self._seen_kind != kind or self._zero_by is None:
             return False
         return self._slowing_hz_s * (self._zero_by - float(t_s)) < self.settings.rate_floor_hz
