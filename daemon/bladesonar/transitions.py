@@ -349,7 +349,9 @@ class Transitions:
         3 s of rest, and the slope is an estimate), and not at all for a line that
         reaches zero more than ``reversal_guard_s`` from now. The fan was last seen
         turning when the known direction was last answered: answers the other way not
-        yet confirmed neither end the wait nor renew its cap.
+        yet confirmed neither end the wait nor renew its cap, and nor does a new run of
+        the known direction once the line is below the floor, until it has lasted
+        ``followed_s`` (:meth:`step`).
 
         A fan whose slowing was not seen at all (its answers ended before they gave a
         slope: 0.2 Hz reversed at 0.12 Hz/s left 0.4 s of them above three times the
