@@ -547,26 +547,27 @@ class Tracker:
         return nu * nu > self.settings.gate_sigma ** 2 * s or abs(nu) > max(slew, 0.05) \
             or abs(nu) > MAX_INNOVATION
 
-    def _follower_takes(self, z: float, r: float) -> bool:
+    def _follower_takes(self, f: tuple[float, float] | None) -> bool:
         """Whether a match the track rejects is one the follower, clearly favoured by the
-        recent matches (weight over SYNC_WEIGHT), expects (within the gate)."""
-        if self.fx is None or self.fP is None or self.follower_weight <= SYNC_WEIGHT:
+        recent matches (weight over SYNC_WEIGHT), expects (within the gate); ``f``: the
+        follower's innovation of the match and its variance (None without a follower)."""
+        if f is None or self.follower_weight <= SYNC_WEIGHT:
             return False
-        fnu, fs = innovation(self.fx, self.fP, z, r)
+        fnu, fs = f
         return fnu * fnu <= self.settings.gate_sigma ** 2 * fs
 
-    def _follower_expects(self, z: float, r: float, slew: float) -> bool | None:
+    def _follower_expects(self, f: tuple[float, float] | None, slew: float) -> bool | None:
         """Whether the follower, while its rate is the one reported (weight over 1/2,
-        :attr:`rate`), expects a match (within its own gate); None while it is not
-        reported. A match it refuses is not taken, whatever the lagging constant-rate
-        track says: at the edge of a slow fan's blind half-period a clear match at the
-        mirror angle lay 0.43 blade period off a follower right at 0.21 Hz; within the
-        track's gate, it was folded into both, and the follower jumped to 0.41 Hz (a
-        spin-up after a reversal, 0.7 s of unknown in a simulated day)."""
-        if self.fx is None or self.fP is None or self.follower_weight <= 0.5:
+        :attr:`rate`), expects a match (``f``, as for :meth:`_follower_takes`: within
+        its own gate); None while it is not reported. A match it refuses is not taken,
+        whatever the lagging constant-rate track says: at the edge of a slow fan's blind
+        half-period a clear match at the mirror angle lay 0.43 blade period off a
+        follower right at 0.21 Hz; within the track's gate, it was folded into both, and
+        the follower jumped to 0.41 Hz (a spin-up after a reversal, 0.7 s of unknown in
+        a simulated day)."""
+        if f is None or self.follower_weight <= 0.5:
             return None
-        fnu, fs = innovation(self.fx, self.fP, z, r)
-        return not self._rejects(fnu, fs, slew)
+        return not self._rejects(f[0], f[1], slew)
 
     def _follow_from_track(self) -> None:
         """(Re)start the follower on the track's line, its acceleration unknown up to the
@@ -756,12 +757,15 @@ class Tracker:
         r = self.r(quality)
         nu, s = innovation(self.x, self.P, z, r)
         slew = st.max_rate + 3.0 * math.sqrt(max(float(self.P[1, 1]), 0.0))
-        expected = self._follower_expects(z, r, slew)
+        # the follower's innovation, once: a sync below changes the track, not the follower
+        f = innovation(self.fx, self.fP, z, r) \
+            if self.fx is not None and self.fP is not None else None
+        expected = self._follower_expects(f, slew)
         refused = expected is False
         # a match the reported follower expects is no sign against the track's line
         # (Tracker.recheck) even when the lagging track rejects it
         self._followed = bool(expected)
-        if not refused and self._rejects(nu, s, slew) and self._follower_takes(z, r):
+        if not refused and self._rejects(nu, s, slew) and self._follower_takes(f):
             # the constant-rate track lags a ramp the follower is on: it takes the
             # follower's line instead of counting the match out (six in a row threw
             # the track away in the middle of spin-ups, and the follower with it)
@@ -779,9 +783,9 @@ class Tracker:
                 self.x = self.fx = self.fP = None
                 self._init()
             return True
-        if self.fx is not None:
+        if self.fx is not None and f is not None:
             assert self.fP is not None   # set with fx
-            fnu, fs = innovation(self.fx, self.fP, z, r)
+            fnu, fs = f
             # log N(fnu; 0, fs) - log N(nu; 0, s), with forgetting
             ll = 0.5 * (math.log(s / fs) + nu * nu / s - fnu * fnu / fs)
             self.evidence += ll - self.evidence / FOLLOW_MEMORY
