@@ -267,18 +267,24 @@ class Transitions:
         self.known_decision = d
         return d, fired
 
+    def _line_rate(self, t_s: float, kind: str) -> float | None:
+        """The rate (Hz) at ``t_s`` of the line on which answers of ``kind`` were last
+        seen slowing (below zero once it has passed zero); None without such a line."""
+        if self._seen_kind != kind or self._zero_by is None:
+            return None
+        return self._slowing_hz_s * (self._zero_by - float(t_s))
+
     def _past_zero(self, t_s: float, kind: str) -> bool:
         """Whether answers of ``kind`` were last seen slowing on a line that has reached
         zero by ``t_s``."""
-        return self._seen_kind == kind and self._zero_by is not None \
-            and float(t_s) > self._zero_by
+        rate = self._line_rate(t_s, kind)
+        return rate is not None and rate < 0.0
 
     def _below_floor(self, t_s: float, kind: str) -> bool:
         """Whether answers of ``kind`` were last seen slowing on a line that is below the
         floor by ``t_s``."""
-        if self._seen_kind != kind or self._zero_by is None:
-            return False
-        return self._slowing_hz_s * (self._zero_by - float(t_s)) < self.settings.rate_floor_hz
+        rate = self._line_rate(t_s, kind)
+        return rate is not None and rate < self.settings.rate_floor_hz
 
     def _see_known(self, t_s: float, rate: float) -> None:
         """Note an answer of the known direction at ``rate`` (0: at rest), bounded by
