@@ -130,7 +130,8 @@ def replay(args: argparse.Namespace) -> None:
               f"{(d.rate_hz or 0):.3f} | pub {s.direction[:4]:4s} {(s.rate_hz or 0):.3f} | "
               f"trk {trk} fol {fol} w {tr.follower_weight:.2f} bound "
               f"{_hz(an, tr.rate_bound):.2f} | known {tz.known} zero_by "
-              f"{'-' if tz._zero_by is None else f'{tz._zero_by:.1f}'}{note}"
+              f"{'-' if tz._zero_by is None else f'{tz._zero_by:.1f}'} | coast "
+              f"{tr.coasted} out {tr.outliers} upd {tr.updates}{note}"
               + (f"\n{'':12s}{s.reason[:150]}" if args.reasons else ""))
 
 
