@@ -296,6 +296,31 @@ def test_a_lost_track_is_not_taken_up_again_faster_than_the_bound():
     assert free.locked and abs(free.rate[0] - 0.13) < 3e-3
 
 
+def test_a_held_track_faster_than_a_new_bound_is_given_up():
+    """A track locked at 0.05 cycles per pulse when the bound falls to 0.01 (the fan is
+    published at rest: seed 14's line at 0.43 Hz lived 100 s on the weak matches of a fan
+    at rest, the bound at 0.1 Hz, and claimed the next start for its own direction) is
+    given up, and the matches of the blade standing in view then lock at rest; a bound
+    above its rate keeps it."""
+    def run(bound):
+        tr = Tracker(TrackerSettings(max_rate=0.45))
+        k, z, q = _matches(0.05, 120, outliers=0.0, seed=3)
+        for a, b, c in zip(k, z, q, strict=True):
+            tr.update(int(a), float(b), float(c))
+        assert tr.x is not None and tr.P is not None and abs(tr.x[1] - 0.05) < 1e-3
+        sd = float(np.sqrt(tr.P[1, 1]))
+        return tr, tr.limit_rate(bound), sd
+    tr, gone, sd = run(0.01)
+    assert gone and not tr.locked and tr.given_up == 1 and tr.rate_bound == 0.01
+    assert 0.01 < 0.05 - 2 * sd                         # it was beyond the bound
+    rng = np.random.default_rng(4)
+    for a in range(120, 180):
+        st = tr.update(a, float(np.mod(0.6 + 0.01 * rng.standard_normal(), 1.0)), 0.6)
+    assert st.locked and abs(st.rate) < 1e-3
+    kept, gone, _ = run(0.052)
+    assert not gone and kept.locked and kept.given_up == 0
+
+
 def _standing_blind(rate, n, seed=7, blind_q=0.03, stop_at=None, mirror=0):
     """Matches of a fan at ``rate`` cycles per pulse whose blade is out of view over the
     second half of each blade period: there every pulse matches one standing phase at a
@@ -521,3 +546,4 @@ def test_a_match_the_reported_follower_expects_is_no_sign_against_the_track(evid
     state = tr.update(101, 0.49, 0.8)
     assert state.outlier and tr.syncs == 0
     assert tr._accepted[-1] == (pytest.approx(0.64), followed)
+

@@ -905,7 +905,7 @@ class PulseAnalyzer:
                 t0, v0 = got
                 bound = min(bound, v0 + 2.0 * c.max_ramp_hz_s * max(t_s - t0, 0.0)
                             + 2.0 * c.rate_floor_hz)
-        tr.rate_bound = self._cycles_per_pulse(bound) if math.isfinite(bound) else math.inf
+        tr.limit_rate(self._cycles_per_pulse(bound) if math.isfinite(bound) else math.inf)
 
     def _cycles_per_pulse(self, hz: float) -> float:
         """A rotation rate in Hz as the tracker's blade cycles per pulse (by the

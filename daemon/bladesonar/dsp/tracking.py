@@ -423,6 +423,7 @@ class Tracker:
     evidence: float = 0.0        # log likelihood ratio follower : track, recent matches
     rechecks: int = 0            # tracks given up because another line fit the matches
     syncs: int = 0               # times the track took the follower's line (_follower_takes)
+    given_up: int = 0            # tracks given up for a rate beyond the bound (limit_rate)
     #: largest |rate| a new line may have (cycles per pulse): the analysis bounds it by
     #: how fast a fan last published at some speed, or at rest, can have sped up since
     #: (PulseAnalyzer._bound_rate)
@@ -489,6 +490,24 @@ class Tracker:
             assert self.P is not None
             return float(self.x[1]), math.sqrt(max(float(self.P[1, 1]), 0.0))
         return float(self.fx[1]), math.sqrt(max(float(self.fP[1, 1]), 0.0))
+
+    def limit_rate(self, bound: float) -> bool:
+        """Set :attr:`rate_bound` (cycles per pulse) and give up a track faster than it by
+        more than twice its rate's standard deviation; True if it was given up. The bound
+        holds for new lines; a line held from before would outlive it: one locked at
+        0.43 Hz a second after a fan came to rest (the bound was 0.85 Hz then) lived on
+        the weak matches of the fan at rest for 100 s, the bound at 0.1 Hz, and claimed
+        the start that followed for its own direction (a false 'reversed' in a simulated
+        day)."""
+        self.rate_bound = bound
+        if self.x is None or self.P is None or not math.isfinite(bound):
+            return False
+        if abs(float(self.x[1])) - 2.0 * math.sqrt(max(float(self.P[1, 1]), 0.0)) <= bound:
+            return False
+        self.x = self.P = self.fx = self.fP = None
+        self.outlier_run = 0
+        self.given_up += 1
+        return True
 
     def expect_change(self) -> None:
         """A fan at rest may start at any moment at up to the steepest ramp: the
