@@ -547,3 +547,30 @@ def test_a_match_the_reported_follower_expects_is_no_sign_against_the_track(evid
     assert state.outlier and tr.syncs == 0
     assert tr._accepted[-1] == (pytest.approx(0.64), followed)
 
+
+def test_a_coasting_follower_does_not_cross_zero_against_its_track():
+    """A simulated day's start from rest: a lock at +0.11 Hz whose follower's rate change
+    came out wrong-signed (-0.28 Hz/s), its rate at -0.01 Hz, reported (weight 0.56) when
+    the blade went out of view. Coasting (weak matches, quality 0.03), the follower's own
+    prediction is -0.01 - 0.28 * 30 / 34 = -0.257 Hz thirty pulses on, and reported it
+    claimed the start the wrong way. With no match to show it, the follower is restarted
+    from the track's line instead: the reported rate stays the track's +0.11 Hz."""
+    from bladesonar.dsp.tracking import kalman_predict
+    st = _coasting_settings(int(2 * 34), coast_min_rate=_hz(0.05))
+    tr = Tracker(st)
+    tr.x, tr.P = np.array([0.2, _hz(0.11)]), np.diag([0.02 ** 2, _hz(0.01) ** 2])
+    tr.fx = np.array([0.2, _hz(-0.01), _hz(-0.28) / 34.0])
+    tr.fP = np.diag([0.02 ** 2, _hz(0.01) ** 2, (_hz(0.05) / 34.0) ** 2])
+    tr.evidence = np.log(0.56 / 0.44)
+    tr.last_k = tr.clear_k = 100
+    tr.start_k, tr.clear_credit = 70, 5
+    assert tr.rate[0] < 0                              # the follower is reported
+    drift, _ = kalman_predict(tr.fx, tr.fP, st.q_rate, 30, st.q_accel)
+    assert drift[1] == pytest.approx(_hz(-0.01 - 0.28 * 30 / 34.0))
+    rates = []
+    for k in range(101, 131):
+        tr.update(k, 0.7, 0.03)
+        rates.append(tr.rate[0])
+    assert tr.coasted == 30 and tr.updates == 0        # no match was measured
+    assert min(rates) == pytest.approx(_hz(0.11))
+    assert tr.fx is not None and tr.fx[1] == pytest.approx(_hz(0.11)) and tr.fx[2] == 0.0

@@ -559,6 +559,17 @@ class Tracker:
         return self.clear_k is not None and \
             k - self.clear_k <= min(COAST_SHARE * period, st.coast_max)
 
+    def _keep_follower_on_side(self) -> None:
+        """A coast carries no match: a follower whose rate has crossed zero against the
+        track's is restarted from the track's line rather than carried on by its rate
+        change alone. A lock on a fan starting from rest had its follower's change
+        wrong-signed; coasting, the follower went from -0.01 to -0.31 Hz in a second
+        while the track held +0.11 Hz, and, reported, it claimed the start the wrong
+        way (a false 'reversed' in a simulated day once the matches came back)."""
+        if self.fx is not None and self.x is not None \
+                and float(self.fx[1]) * float(self.x[1]) < 0.0:
+            self._follow_from_track()
+
     def _rejects(self, nu: float, s: float, slew: float) -> bool:
         """Whether an innovation ``nu`` (variance ``s``) lies outside the gate, or further
         than the fastest line could move (``slew``, cycles), or further than
@@ -753,6 +764,7 @@ class Tracker:
             self.last_k = int(k)
             if self._coasts(int(k), quality):
                 self.coasted += 1
+                self._keep_follower_on_side()
             else:
                 outlier = self._measure(int(k), z, quality)
         if self.x is not None:
