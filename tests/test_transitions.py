@@ -321,6 +321,37 @@ def test_the_old_direction_is_bounded_by_rest_and_by_how_fast_a_fan_speeds_up():
     assert fired == [("reversed", 6.1)]
 
 
+@pytest.mark.parametrize("other, first", [
+    # new locks on a fan just at rest, 0.33 Hz the other way for 0.7 s from 5.4 s:
+    # possible from the last answer (0.06 Hz at 4.4 s) at 4.4 + 0.39 / 0.3 = 5.7 s, and
+    # the count is met at 5.8 s; from the line's zero (5.0 s) only at 5.0 + 0.33 / 0.3
+    # = 6.1 s, when they have ended
+    ({j: ("reversed", 0.33) for j in range(9, 16)}, None),
+    # a true reversal through zero at 5.0 s, answered the other way from 0.1 Hz at
+    # 5.7 s on at 0.15 Hz/s: possible from 5.0 + 0.1 / 0.3 = 5.33 s, so it fires at its
+    # count, the fifth answer (6.1 s)
+    ({j: ("reversed", 0.1 + 0.15 * 0.1 * (j - 12)) for j in range(12, 40)}, 6.1),
+])
+def test_a_reversal_is_timed_from_the_zero_of_the_slowing_line(other, first):
+    """Closed form, 10 answers/s, 0.3 Hz/s: 'same' slowing from 0.4 Hz at 1 s at 0.1 Hz/s
+    (its line reaches zero at 5.0 s), answered down to 0.06 Hz at 4.4 s, then unknown
+    from 4.5 s but for the answers ``other`` (index from 4.5 s). A fan cannot be turning
+    the other way at some rate sooner than that rate's ramp from the zero of its line (a
+    simulated day: new locks 0.4 s after the line's zero claimed 0.32-0.35 Hz for 0.8 s,
+    and the wait, timed from the last answer of the old way, 1.2 s before, let them
+    through as a 'reversed')."""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=10.0), 10.0)
+    for i in range(10):
+        tr.step(i * 0.1, i, _d("same", 0.4))
+    k = _slow_down(tr, 1.0, 4.4, 0.4, -0.1, pulse=10)
+    fired = []
+    for j in range(40):
+        d, r = other.get(j, ("unknown", 0.0))
+        t = round(4.5 + 0.1 * j, 3)
+        fired += [(e.kind, t) for e in tr.step(t, k + j, _d(d, r))[1]]
+    assert fired == ([] if first is None else [("reversed", first)])
+
+
 def _slow_down(tr, t0, t1, r0, slope, pulse=0):
     """Answers 'same' every 0.1 s from t0 to t1 on the line r0 + slope (t - t0)."""
     n = int(round((t1 - t0) / 0.1))

@@ -234,7 +234,8 @@ class Transitions:
         if cand != self.known:
             guard = self._reversal_guard(t_s) \
                 if cand == "stopped" and not d.seen_still else None
-            soonest = self._soonest_reversal(self._cand_rate) if cand != "stopped" else None
+            soonest = self._soonest_reversal(t_s, self._cand_rate) \
+                if cand != "stopped" else None
             if soonest is not None and t_s >= soonest:
                 soonest = None
             if self._cand_n < need or guard is not None or soonest is not None:
@@ -246,8 +247,10 @@ class Transitions:
                     why = (f"confirming a stop: a fan {how} may be reversing through zero "
                            f"(until {guard:.1f} s)")
                 elif soonest is not None and self._known_seen is not None:
+                    zeroed = self.known is not None and self._past_zero(t_s, self.known)
                     why = (f"confirming {what}: {t_s - self._known_seen[0]:.2f} s after "
-                           f"{self._known_seen[1]:.3f} Hz the other way is sooner than a "
+                           f"{self._known_seen[1]:.3f} Hz the other way"
+                           f"{', slowing to zero,' if zeroed else ''} is sooner than a "
                            f"fan reverses (until {soonest:.1f} s)")
                 else:
                     why = f"confirming {what} ({min(self._cand_n, need)} of {need} pulses)"
@@ -295,17 +298,26 @@ class Transitions:
             rate = min(rate, r0 + st.max_reversal_hz_s * max(float(t_s) - t0, 0.0))
         self._known_seen = (float(t_s), rate)
 
-    def _soonest_reversal(self, rate: float) -> float | None:
+    def _soonest_reversal(self, t_s: float, rate: float) -> float | None:
         """When a fan last seen turning the known way could be seen turning the other
         way at ``rate``, but no later than ``reversal_hold_s`` after the other way was
-        first answered (None: no known direction, or no limit)."""
+        first answered (None: no known direction, or no limit). A slowing line of the
+        known way that has reached zero by ``t_s`` puts the fan at zero no sooner than
+        its zero: the last answer of the old way may lie a second or more before it, at
+        a rate near the floor (0.057 Hz 1.2 s before new locks on a fan just at rest
+        claimed 0.32-0.35 Hz the other way, 0.4 s after the line's zero: a false
+        'reversed' in a simulated day). A zero still ahead is not used: answers after a
+        stretch at rest join the line of those before it, and put its zero seconds off."""
         st = self.settings
         if self.known not in ("+", "-") or self._known_seen is None \
                 or not st.max_reversal_hz_s > 0:
             return None
         t, old = self._known_seen
-        return min(t + (old + rate) / st.max_reversal_hz_s,
-                   self._cand_t + st.reversal_hold_s)
+        soonest = t + (old + rate) / st.max_reversal_hz_s
+        zero = self._zero_by if self._seen_kind == self.known else None
+        if zero is not None and zero <= t_s:
+            soonest = max(soonest, zero + rate / st.max_reversal_hz_s)
+        return min(soonest, self._cand_t + st.reversal_hold_s)
 
     def _watch_slowing(self, t_s: float, d: Decision) -> None:
         """Remember when a fan seen slowing down steadily would reach zero: the line of
