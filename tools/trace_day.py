@@ -58,7 +58,11 @@ def save(args: argparse.Namespace) -> None:
     pending: list[dict[str, Any]] = []      # saved, still gathering their audio
     pos, buf = 0, np.zeros(0)
     end = min(args.hours * 3600.0, max(marks) + args.tail + 1.0)
-    for xs, _ in sim.chunks(end):
+    # the whole day, as bench_day runs it: the simulator sets its noise from the fan's
+    # power over the whole run, and a shorter one is a different day
+    for xs, _ in sim.chunks(args.hours * 3600.0):
+        if pos / fs >= end:
+            break
         buf = np.concatenate([buf, xs])
         n = len(buf) // pri
         for i in range(n):

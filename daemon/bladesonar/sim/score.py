@@ -135,6 +135,11 @@ class Score:
             "missed_detail": [(e.kind, round(e.t_s, 2)) for e in self.missed],
             "latency_s": {k: stats(self.latencies(k)) for k in ("started", "stopped",
                                                                "reversed")},
+            # the three slowest of each kind, (truth time, latency): where to trace
+            "slowest": {k: [(round(ev.t_s, 2), round(lat, 2)) for ev, lat in
+                            sorted(((e, x) for e, x in self.hits if e.kind == k),
+                                   key=lambda h: -h[1])[:3]]
+                        for k in ("started", "stopped", "reversed")},
             "state_share": {"right": round(self.right / n, 4),
                             "unknown": round(self.unknown / n, 4),
                             "wrong": round(self.wrong / n, 4)},
