@@ -561,14 +561,19 @@ class Tracker:
 
     def _keep_follower_on_side(self) -> None:
         """A coast carries no match: a follower whose rate has crossed zero against the
-        track's is restarted from the track's line rather than carried on by its rate
-        change alone. A lock on a fan starting from rest had its follower's change
-        wrong-signed; coasting, the follower went from -0.01 to -0.31 Hz in a second
-        while the track held +0.11 Hz, and, reported, it claimed the start the wrong
-        way (a false 'reversed' in a simulated day once the matches came back)."""
+        track's is held at rest (rate and rate change zero) rather than carried on by its
+        rate change alone, and reported it claims no direction. A lock on a fan starting
+        from rest had its follower's change wrong-signed; coasting, the follower went
+        from -0.01 to -0.31 Hz in a second while the track held +0.11 Hz, and, reported,
+        it claimed the start the wrong way (a false 'reversed' in a simulated day once
+        the matches came back). Not restarted from the track's line: at the zero of a
+        slow reversal the track's rate is the old direction's, seconds stale, and
+        reported it renewed the old direction and cut the wait for the reversal short
+        (a reversal read as a stop and a start)."""
         if self.fx is not None and self.x is not None \
                 and float(self.fx[1]) * float(self.x[1]) < 0.0:
-            self._follow_from_track()
+            self.fx = self.fx.copy()
+            self.fx[1] = self.fx[2] = 0.0
 
     def _rejects(self, nu: float, s: float, slew: float) -> bool:
         """Whether an innovation ``nu`` (variance ``s``) lies outside the gate, or further
