@@ -671,6 +671,17 @@ def test_score_matches_in_order_and_counts_false_and_missed():
     assert sc.false == [("reversed", 9.0), ("started", 30.0)]
 
 
+def test_score_names_the_slowest_events_of_each_kind():
+    """Stops at 10, 20, 30, 40 s detected 2.0, 2.9, 1.5 and 2.5 s later: the summary
+    names the three slowest, slowest first, by their truth time (where to trace)."""
+    truth = [TruthEvent("stopped", t, 0) for t in (10.0, 20.0, 30.0, 40.0)]
+    sc = score_events(truth, [("stopped", 12.0), ("stopped", 22.9), ("stopped", 31.5),
+                              ("stopped", 42.5)])
+    got = sc.summary()["slowest"]
+    assert got["stopped"] == [(20.0, 2.9), (40.0, 2.5), (10.0, 2.0)]
+    assert got["started"] == [] and got["reversed"] == []
+
+
 def test_unknown_stretches_in_the_middle_of_a_turn_are_counted():
     """score_gaps counts an unknown stretch only between two answers of the same
     direction while the fan turns at 0.15 Hz or more throughout; its length runs from
