@@ -28,6 +28,7 @@ from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer
 from bladesonar.sim.render import Simulator, simulate
 from bladesonar.sim.schedule import Schedule, ordinary_use, parse
+from bladesonar.sim.score import true_time
 
 #: the capture clock's drift on a bench_day day (the issue's test condition)
 DRIFT_PPM = 40.0
@@ -63,26 +64,22 @@ def save(args: argparse.Namespace) -> None:
     for xs, _ in sim.chunks(args.hours * 3600.0):
         if pos / fs >= end:
             break
+        for p in pending:
+            p["audio"].append(xs)
         buf = np.concatenate([buf, xs])
         n = len(buf) // pri
         for i in range(n):
             if marks and pos / fs >= marks[0] - args.lead:
-                t = marks.pop(0)
-                pending.append({"at": t, "pos": pos, "live": pickle.dumps(live),
+                # its audio: the rest of this chunk's pulses on, then every later chunk
+                pending.append({"at": marks.pop(0), "pos": pos, "live": pickle.dumps(live),
                                 "audio": [buf[i * pri:]], "schedule": sch,
                                 "drift_ppm": DRIFT_PPM})
             live.push(buf[i * pri:(i + 1) * pri], pos)
             live.take_events()
             pos += pri
         buf = buf[n * pri:]
-        for p in pending:
-            # the chunk a moment was saved in is in its audio already
-            if p.setdefault("_n", 0):
-                p["audio"].append(xs)
-            p["_n"] += 1
         for p in [p for p in pending if pos / fs >= p["at"] + args.tail]:
             pending.remove(p)
-            p.pop("_n")
             p["audio"] = np.concatenate(p["audio"])
             f = out / f"seed{args.seed}_{p['at']:g}.pkl"
             f.write_bytes(pickle.dumps(p))
@@ -102,7 +99,6 @@ def replay(args: argparse.Namespace) -> None:
     live: LiveAnalyzer = pickle.loads(snap["live"])
     sch: Schedule = snap["schedule"]
     pri, fs = live.pri, live.cfg.audio.sample_rate
-    scale = 1.0 + snap["drift_ppm"] * 1e-6     # stream time -> the schedule's (score.true_time)
     audio, pos = snap["audio"], snap["pos"]
     t_from = args.t_from if args.t_from is not None else -math.inf
     t_to = args.t_to if args.t_to is not None else math.inf
@@ -126,7 +122,7 @@ def replay(args: argparse.Namespace) -> None:
         d, s = an.decided, an.state
         if an._since != 0 and not note and not args.every_pulse:
             continue
-        truth = float(sch.rate_at(np.array([t / scale]))[0])
+        truth = float(sch.rate_at(np.array([true_time(t, snap["drift_ppm"])]))[0])
         trk = "-" if tr.x is None else f"{_hz(an, float(tr.x[1])):+.3f}"
         fol = "-" if tr.fx is None else f"{_hz(an, float(tr.fx[1])):+.3f}"
         tz = an.transitions
