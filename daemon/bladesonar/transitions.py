@@ -314,9 +314,8 @@ class Transitions:
             return None
         t, old = self._known_seen
         soonest = t + (old + rate) / st.max_reversal_hz_s
-        zero = self._zero_by if self._seen_kind == self.known else None
-        if zero is not None and zero <= t_s:
-            soonest = max(soonest, zero + rate / st.max_reversal_hz_s)
+        if self._past_zero(t_s, self.known) and self._zero_by is not None:
+            soonest = max(soonest, self._zero_by + rate / st.max_reversal_hz_s)
         return min(soonest, self._cand_t + st.reversal_hold_s)
 
     def _watch_slowing(self, t_s: float, d: Decision) -> None:
