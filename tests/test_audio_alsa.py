@@ -21,12 +21,15 @@ def _alsa():
     require_alsa()
 
 
-def test_capture_is_prf_locked_and_sample_exact(tmp_path, monkeypatch):
+@pytest.mark.parametrize("period_pulses", [1, 4])
+def test_capture_is_prf_locked_and_sample_exact(tmp_path, monkeypatch, period_pulses):
     """Pulse k is played at sample k * pri, so its direct coupling (gain 1 in the scene,
-    amplitude 0.5, an exact S16 code) sits at the same place in every captured period."""
+    amplitude 0.5, an exact S16 code) sits at the same place in every captured PRI,
+    whatever the ALSA period (one PRI, or several: one wake-up of the threads each)."""
     from bladesonar.service.alsa_audio import AlsaAudio
 
-    cfg_path = write_config(tmp_path / "cfg.yaml", tmp_path / "state")
+    cfg_path = write_config(tmp_path / "cfg.yaml", tmp_path / "state",
+                            audio={"period_pulses": period_pulses})
     cfg = config.load(cfg_path)
     pri = cfg.waveform.pri_samples
     with RoomProcess(cfg_path, tmp_path / "room", "ccw:0.45:60", realtime=False) as room:
@@ -42,7 +45,8 @@ def test_capture_is_prf_locked_and_sample_exact(tmp_path, monkeypatch):
     blocks = [b for b in got if b is not None]
     assert [b.start_sample for b in blocks] == [k * pri for k in range(400)]
     assert not any(b.discontinuity for b in blocks)
-    latency = cfg.audio.buffer_periods * pri + 321          # the room's documented default
+    # the room's documented default: one ALSA buffer and 321 samples
+    latency = cfg.audio.buffer_periods * cfg.audio.period_pulses * pri + 321
     first = latency // pri
     at = latency % pri
     x = np.array([b.samples for b in blocks[first:]])

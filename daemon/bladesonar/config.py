@@ -34,7 +34,11 @@ class AudioSettings:
     capture_device: str = opt("default", "ALSA PCM name for the microphone")
     format: str = opt("S16_LE", "ALSA sample format of both streams",
                       choices=("S16_LE", "S32_LE"))
-    buffer_periods: int = opt(4, "ALSA buffer size in periods (one period = one PRI)",
+    period_pulses: int = opt(4, "ALSA period in PRIs: the audio threads wake once a period "
+                             "(a period of one PRI woke them 68 times a second, a quarter "
+                             "of the daemon's CPU); 1 for a card that accepts no other",
+                             lo=1, hi=64, unit="PRIs")
+    buffer_periods: int = opt(4, "ALSA buffer size in periods (of period_pulses PRIs)",
                               lo=2, hi=64)
     ring_pulses: int = opt(256, "capture ring between the audio thread and processing",
                            lo=8, hi=65536, unit="pulses")

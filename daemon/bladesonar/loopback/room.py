@@ -100,13 +100,17 @@ class Room:
         self.fs = float(cfg.audio.sample_rate)
         self.fmt = cfg.audio.format
         self.period_bytes = self.pri * bytes_per_sample(self.fmt)
-        buffer = cfg.audio.buffer_periods * self.pri
+        #: what the room writes at once: one ALSA period of the daemon's capture (the
+        #: infile plugin's reader must never see part of one)
+        self.unit = int(cfg.audio.period_pulses) * self.pri
+        buffer = cfg.audio.buffer_periods * self.unit
         if latency_samples is None:
             latency_samples = buffer + EXTRA_LATENCY
         if latency_samples < buffer:
-            raise ConfigError("latency_samples", latency_samples, f"must be at least one ALSA "
-                              f"buffer (audio.buffer_periods x pri_samples = {buffer}): the "
-                              "capture needs that much silence before the first echo")
+            raise ConfigError("latency_samples", latency_samples, "must be at least one ALSA "
+                              "buffer (audio.buffer_periods x period_pulses x pri_samples = "
+                              f"{buffer}): the capture needs that much silence before the "
+                              "first echo")
         self.latency = int(latency_samples)
         self.noise_sigma = float(noise_sigma)
         self._rng = np.random.default_rng([int(seed), 0x100])
@@ -136,14 +140,14 @@ class Room:
         # large capture pipe: room for the pre-written silence and a few periods
         self._set_pipe_size(self._fd_play, 4096)
         self._cap_size = self._set_pipe_size(self._fd_cap, 1 << 20)
-        if self._cap_size < 2 * (self.latency // self.pri + 2) * self.period_bytes:
+        if self._cap_size < 2 * (self.latency + 2 * self.unit) * bytes_per_sample(self.fmt):
             log.warning("capture pipe holds only %d bytes", self._cap_size)
         self._drain(self._fd_cap)           # stale samples of an earlier session
         # the capture stream starts with whole periods of silence: the latency before the
         # room's first answer, of which the part past a period boundary stays in _acc
         self._acc_start = 0
         self._acc = np.zeros(self.latency)
-        self._emit(upto=(self.latency // self.pri) * self.pri, pace=False)
+        self._emit(upto=(self.latency // self.unit) * self.unit, pace=False)
 
     @staticmethod
     def _set_pipe_size(fd: int, size: int) -> int:
@@ -251,17 +255,19 @@ class Room:
 
     def _emit(self, upto: int, pace: bool,
               should_stop: Callable[[], bool] = lambda: False) -> bool:
-        """Write every whole capture period that ends at or before capture sample ``upto``."""
+        """Write every whole capture period (``unit``) that ends at or before capture
+        sample ``upto``."""
         assert self._fd_cap is not None
-        while self._acc_start + self.pri <= upto:
-            x = self._acc[:self.pri]
+        u = self.unit
+        while self._acc_start + u <= upto:
+            x = self._acc[:u]
             if self.noise_sigma > 0:
-                x = x + self.noise_sigma * self._rng.standard_normal(self.pri)
+                x = x + self.noise_sigma * self._rng.standard_normal(u)
             data = encode(x, self.fmt)
             if pace and self._t0 is not None:
                 # period j is complete when its last sample has been "recorded"
-                j = self._acc_start // self.pri - self.latency // self.pri
-                wait = self._t0 + (j + 1) * self.pri / self.fs - time.monotonic()
+                j = self._acc_start // u - self.latency // u
+                wait = self._t0 + (j + 1) * u / self.fs - time.monotonic()
                 if wait > 0:
                     time.sleep(wait)
             if not self._wait_room(len(data), should_stop):
@@ -269,8 +275,8 @@ class Room:
             n = os.write(self._fd_cap, data)
             if n != len(data):   # cannot happen on a blocking pipe with room; be loud
                 raise AudioDeviceError(f"short write to {self.fifo_cap}: {n} of {len(data)}")
-            self._acc = self._acc[self.pri:]
-            self._acc_start += self.pri
+            self._acc = self._acc[u:]
+            self._acc_start += u
             self.stats.periods_captured += 1
         return True
 

@@ -2,11 +2,12 @@
 
 The playback thread writes the pulse train addressed by a global sample counter (pulse k
 at played sample k * pri_samples), so the pulse schedule is PRF-locked by construction
-whatever the write sizes. The capture thread reads whole periods (one period = one PRI)
-into a bounded ring. Neither thread does DSP; pyalsaaudio releases the GIL inside
-read/write. An xrun (-32 from read or write) is counted and flags the next delivered block
-as a discontinuity: capture starts on the first read and playback on the first write, so
-their offset holds only until an xrun, and the consumer must re-measure it from the data.
+whatever the write sizes. The capture thread reads whole periods (``audio.period_pulses``
+PRIs each: the threads wake once a period) and puts each PRI into a bounded ring. Neither
+thread does DSP; pyalsaaudio releases the GIL inside read/write. An xrun (-32 from read
+or write) is counted and flags the next delivered block as a discontinuity: capture
+starts on the first read and playback on the first write, so their offset holds only
+until an xrun, and the consumer must re-measure it from the data.
 
 pyalsaaudio is imported lazily: the analysis tools never need it.
 """
@@ -40,8 +41,8 @@ def _alsaaudio() -> Any:
 class TxSource:
     """Transmit bytes for played samples [start, start + n), from the global counter.
 
-    Whole aligned periods past the first pulse are all identical, so that one is encoded
-    once; anything else is computed by ``waveform.pulse_train_chunk``.
+    Whole aligned PRIs past the first pulse are all identical, so a run of them is that one
+    encoded once and repeated; anything else is computed by ``waveform.pulse_train_chunk``.
     """
 
     def __init__(self, cfg: Any) -> None:
@@ -52,13 +53,17 @@ class TxSource:
         #: first aligned period start from which every period is the same
         self._steady_from = -(-pulse_len // self.pri) * self.pri
         self._steady = self._make(self._steady_from, self.pri)
+        self._runs: dict[int, bytes] = {}
 
     def _make(self, start: int, n: int) -> bytes:
         return encode(waveform.pulse_train_chunk(start, n, self.cfg), self.fmt)
 
     def chunk(self, start: int, n: int) -> bytes:
-        if n == self.pri and start % self.pri == 0 and start >= self._steady_from:
-            return self._steady
+        if n % self.pri == 0 and start % self.pri == 0 and start >= self._steady_from:
+            m = n // self.pri
+            if m not in self._runs:
+                self._runs[m] = self._steady * m
+            return self._runs[m]
         return self._make(start, n)
 
 
@@ -69,7 +74,8 @@ class AlsaAudio:
         self.cfg = cfg
         self.pri = int(cfg.waveform.pri_samples)
         self.fmt = cfg.audio.format
-        self.period_bytes = self.pri * bytes_per_sample(self.fmt)
+        self.period_bytes = self.pri * bytes_per_sample(self.fmt)   # one PRI
+        self.period = self.pri * int(cfg.audio.period_pulses)         # one ALSA period
         self._ring = CaptureRing(cfg.audio.ring_pulses)
         self._decoder = BlockDecoder(self.fmt)
         self._tx = TxSource(cfg)
@@ -94,7 +100,7 @@ class AlsaAudio:
         try:
             pcm = alsa.PCM(type=pcm_type, mode=alsa.PCM_NORMAL, device=device,
                            rate=a.sample_rate, channels=1, format=fmt_code,
-                           periodsize=self.pri, periods=a.buffer_periods)
+                           periodsize=self.period, periods=a.buffer_periods)
         except alsa.ALSAAudioError as exc:
             key = "playback_device" if kind == "playback" else "capture_device"
             raise AudioDeviceError(
@@ -114,8 +120,9 @@ class AlsaAudio:
         want = (("rate", a.sample_rate, "audio.sample_rate"),
                 ("channels", 1, f"audio.{kind}_device (a mono PCM, e.g. plughw:CARD,0)"),
                 ("format_name", self.fmt, "audio.format"),
-                ("period_size", self.pri, "waveform.pri_samples, or use a plughw: device "
-                 "that accepts any period size"))
+                ("period_size", self.period, "audio.period_pulses (1: one PRI), "
+                 "waveform.pri_samples, or use a plughw: device that accepts any period "
+                 "size"))
         bad = [(k, info.get(k), v, fix) for k, v, fix in want if info.get(k) != v]
         if bad:
             what = "; ".join(f"{k} is {got!r}, not {v!r} (change {fix})"
@@ -157,9 +164,9 @@ class AlsaAudio:
             self._ring.close()
 
     def _playback_loop(self) -> None:
-        pcm, pri = self._play, self.pri
+        pcm, period = self._play, self.period
         while not self._stop.is_set():
-            n = pcm.write(self._tx.chunk(self.samples_written, pri))
+            n = pcm.write(self._tx.chunk(self.samples_written, period))
             if n < 0:
                 if n != -EPIPE:
                     raise AudioDeviceError(f"playback write failed with error {n}")
@@ -168,7 +175,7 @@ class AlsaAudio:
                 log.warning("playback underrun (%d so far)", self.xruns_playback)
                 continue
             self.samples_written += n
-            self.periods_written += 1
+            self.periods_written = self.samples_written // self.pri   # PRIs, like periods_read
 
     def _capture_loop(self) -> None:
         pcm, fs, pri = self._cap, float(self.cfg.audio.sample_rate), self.pri
