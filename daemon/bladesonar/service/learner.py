@@ -12,7 +12,6 @@ and the reference replaced or forgotten is kept as ``<daemon.reference>.previous
 from __future__ import annotations
 
 import collections
-import ctypes
 import logging
 import threading
 from collections.abc import Callable
@@ -24,6 +23,7 @@ import numpy as np
 
 from ..config import Config
 from ..errors import BladesonarError, EstimationError
+from .memory import give_back_memory
 
 log = logging.getLogger(__name__)
 
@@ -119,18 +119,6 @@ class ReferenceJobs:
                 self._done.append(result)
                 self._running = None
                 self._cond.notify_all()
-
-
-def give_back_memory() -> None:
-    """Return the heap a job freed to the system (glibc's malloc_trim; elsewhere nothing).
-    Folding 20 s into a reference peaks near 100 MiB in this thread's malloc arena, and
-    glibc keeps a freed arena's pages: the daemon stayed at 122 MiB after learning."""
-    try:
-        trim = ctypes.CDLL(None).malloc_trim      # the process's own symbols: its libc
-    except (OSError, AttributeError):             # not glibc (musl has no malloc_trim)
-        return
-    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
-    trim(0)
 
 
 # -- the jobs (run in the worker thread; pure apart from the file they write) -------------

@@ -24,7 +24,7 @@ from ..dsp.stats import median
 from ..errors import BladesonarError, ReferenceMissingError
 from ..live import Estimate, LiveAnalyzer
 from ..reference_fit import FitWatch
-from . import learner
+from . import learner, memory
 from .audio import AudioIO, PulseBlock
 from .messages import Command, utc_iso
 from .notify import Notifier, NullNotifier
@@ -225,6 +225,9 @@ class Service:
     # -- the loop ------------------------------------------------------------------------
 
     def run(self) -> int:
+        # before the reference and the warm-up allocate: a fixed mmap threshold keeps the
+        # heap from holding what the start freed (service/memory.py)
+        memory.fix_mmap_threshold()
         t_start = self.clock()
         t = os.times()
         self._cpu_mark = (t.user + t.system, 0.0)   # start-up (imports) is not steady state
@@ -316,6 +319,7 @@ class Service:
                 self._signal_problem_text = None
                 if not self._ready_sent:
                     self._ready_sent = True
+                    memory.give_back_memory()         # what the start freed
                     self.notifier.ready(self._status_line(estimate))
                     log.info("running: %s", self._status_line(estimate))
                 self.notifier.watchdog()
@@ -344,6 +348,7 @@ class Service:
                 if now >= next_stats:
                     self.publisher.publish_stats(self.stats(now - t_start))
                     next_stats = now + self.cfg.mqtt.stats_interval_s
+                    memory.give_back_memory()     # what the blocks since freed
         finally:
             self.notifier.stopping()
             self._close_audio()
