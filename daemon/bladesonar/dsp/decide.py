@@ -58,6 +58,22 @@ class MotionMeter:
         # window > max_lag + 1)
         self._sum = np.zeros(length)                      # sum of the ring's pulses
         self._n = 0
+        # index arrays that depend only on the shapes (made once: each call made them anew)
+        self._lags = np.arange(1, self.max_lag + 1)
+        self._upper = np.triu(np.ones((self.max_lag, self.max_lag), dtype=bool))
+        self._indices: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+
+    def _index(self, h: int, n: int) -> tuple[np.ndarray, ...]:
+        """(each new pulse's predecessor at each lag, which exist, column of each new
+        pulse) for ``h`` history pulses and ``n`` new ones."""
+        got = self._indices.get((h, n))
+        if got is None:
+            pos = h + np.arange(n)                       # index of each new pulse in ext
+            src = pos[:, None] - self._lags[None, :]     # its predecessor at each lag
+            ok = src >= 0
+            got = (np.where(ok, src, 0), ~ok, np.arange(n)[:, None])
+            self._indices[(h, n)] = got
+        return got
 
     def update(self, x: np.ndarray) -> None:
         """Add one pulse, shape (length,). Lost pulses are not fed (a lag then spans the
@@ -87,12 +103,9 @@ class MotionMeter:
         e_new = np.einsum("ij,ij->i", xs, xs)
         e_ext = np.concatenate([self._e[a:b] for a, b in runs] + [e_new])
         gram = np.vstack([self._s[a:b] @ xs.T for a, b in runs] + [xs @ xs.T])   # (h + n, n)
-        pos = h + np.arange(n)                           # index of each new pulse in ext
-        src = pos[:, None] - np.arange(1, M + 1)[None, :]   # its predecessor at each lag
-        ok = src >= 0
-        src = np.where(ok, src, 0)
-        rows = 0.5 * (e_new[:, None] + e_ext[src] - 2.0 * gram[src, np.arange(n)[:, None]])
-        rows[~ok] = 0.0
+        src, missing, cols = self._index(h, n)
+        rows = 0.5 * (e_new[:, None] + e_ext[src] - 2.0 * gram[src, cols])
+        rows[missing] = 0.0
         count = self._n + np.arange(n)                   # pulses fed before each new one
         j = count % self.window
         full = count >= self.window                      # slots whose old pulse leaves
@@ -125,10 +138,10 @@ class MotionMeter:
         # D_m: the mean over the pulses that had m predecessors in the window. Each ring
         # row holds a pulse's lag energies from its arrival; of the oldest M pulses
         # (time order), the one at position p < m has lost its lag-m predecessor
-        M = self.max_lag
-        oldest = (self._n - n + np.arange(M)) % self.window
-        lost = np.triu(self._d[oldest]).sum(axis=0)    # rows p, lags m = c + 1 > p
-        dm = (self._d[:n].sum(axis=0) - lost) / (n - np.arange(1, M + 1))
+        oldest = (self._n - n + self._lags - 1) % self.window
+        # rows p, lags m = c + 1 > p (np.triu, with its mask made once)
+        lost = np.where(self._upper, self._d[oldest], 0.0).sum(axis=0)
+        dm = (self._d[:n].sum(axis=0) - lost) / (n - self._lags)
         noise = float(dm.min())
         mean = self._sum / n          # a running sum: the ring is not re-averaged per call
         var = float(self._e[:n].mean() - mean @ mean)
