@@ -70,6 +70,40 @@ def test_chunked_alignment_equals_one_shot():
     np.testing.assert_array_equal(chunked.pulses, whole.pulses)
 
 
+def test_edges_measured_ahead_are_those_measured_one_by_one(monkeypatch):
+    """The edges of a block measured together (PulseAligner._premeasure) are the ones the
+    aligner measures pulse by pulse, to rounding, through drift, noise and a drop-out."""
+    x, edges, _ = pulse_train(80, PRI, rate=0.05, drift_ppm=170, noise=2e-3, seed=9,
+                              first_edge=611.4)
+    cut_at = int(edges[40] + 300)
+    x = np.concatenate([x[:cut_at], x[cut_at + 250:]])
+    g = _gate()
+
+    def run() -> AlignedPulses:
+        al = PulseAligner(PRI, g)
+        parts = [al.push(x[i:i + 8 * PRI]) for i in range(0, len(x), 8 * PRI)]
+        return AlignedPulses.concat(parts + [al.flush()], g.length)
+
+    measured = PulseAligner._premeasure
+    counted: list[int] = []
+
+    def counting(self, first):
+        got = measured(self, first)
+        counted.append(len(got))
+        return got
+
+    monkeypatch.setattr(PulseAligner, "_premeasure", counting)
+    ahead = run()
+    assert sum(counted) >= 60                        # most edges were measured ahead
+    monkeypatch.setattr(PulseAligner, "_premeasure", lambda self, first: {})
+    alone = run()
+    assert len(ahead) == len(alone) >= 78
+    np.testing.assert_array_equal(ahead.status, alone.status)
+    np.testing.assert_allclose(ahead.edges, alone.edges, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ahead.pulses, alone.pulses, rtol=0, atol=1e-9)
+    assert (ahead.status == DROPOUT).sum() >= 1
+
+
 @pytest.mark.parametrize("ppm", [200.0, -200.0])
 def test_200ppm_drift_stays_aligned(ppm):
     """0.26 sample per pulse of clock mismatch: every edge within 0.05 sample of truth."""
