@@ -752,7 +752,7 @@ class PulseAnalyzer:
 
     def _streams(self) -> tuple[Any, ...]:
         """The state the static removal of a block moves (for _redo_rest)."""
-        return (self.static.copy(), self.slow.copy(), copy.deepcopy(self.bursts),
+        return (self.static.copy(), self.slow.copy(), self.bursts.copy(),
                 self._scale_due, self.scale, self.scale_corr, self._rescale, self.seen,
                 self.dropped)
 

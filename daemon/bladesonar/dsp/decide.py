@@ -106,11 +106,17 @@ class MotionMeter:
         src, missing, cols = self._index(h, n)
         rows = 0.5 * (e_new[:, None] + e_ext[src] - 2.0 * gram[src, cols])
         rows[missing] = 0.0
-        count = self._n + np.arange(n)                   # pulses fed before each new one
-        j = count % self.window
-        full = count >= self.window                      # slots whose old pulse leaves
-        if full.any():
-            self._sum -= self._s[j[full]].sum(axis=0)
+        j0 = self._n % self.window
+        j: slice | np.ndarray
+        if j0 + n <= self.window and self._n >= self.window:
+            j = slice(j0, j0 + n)                        # the usual case: no wrap, all full
+            self._sum -= self._s[j].sum(axis=0)
+        else:
+            count = self._n + np.arange(n)               # pulses fed before each new one
+            j = count % self.window
+            full = count >= self.window                  # slots whose old pulse leaves
+            if full.any():
+                self._sum -= self._s[j[full]].sum(axis=0)
         self._sum += xs.sum(axis=0)
         self._d[j] = rows
         self._e[j] = e_new

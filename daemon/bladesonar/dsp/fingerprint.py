@@ -78,8 +78,11 @@ def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str =
         raise ValueError(f"kind must be 'envelope' or 'raw', not {kind!r}")
     env = analytic_magnitude(y, band)
     if smooth > 1:
-        c = np.cumsum(np.pad(env, ((0, 0), (smooth // 2 + 1, smooth - smooth // 2 - 1)),
-                             mode="edge"), axis=1)
+        # edge padding written out: np.pad(mode="edge") cost a tenth of the daemon's
+        # analysis on these small blocks (the same values)
+        lo, hi = smooth // 2 + 1, smooth - smooth // 2 - 1
+        c = np.cumsum(np.concatenate([np.repeat(env[:, :1], lo, axis=1), env,
+                                      np.repeat(env[:, -1:], hi, axis=1)], axis=1), axis=1)
         env = (c[:, smooth:] - c[:, :-smooth]) / smooth
     centred: np.ndarray = env - env.mean(axis=1, keepdims=True)
     return centred
