@@ -120,7 +120,8 @@ def test_reloads_that_change_nothing_the_analysis_uses_keep_tracking(tmp_path):
                 "sim": {"schedule": "ccw:0.45:120", "realtime": False}}
     svc, cfg_path, pubs, th = _start_service(tmp_path, sections)
     try:
-        _wait(lambda: any(s.get("status") == "ok" for s in pubs[-1].states))
+        # (the service thread makes its publisher first: none may exist yet)
+        _wait(lambda: bool(pubs) and any(s.get("status") == "ok" for s in pubs[-1].states))
         running = svc.analyzer
         for i in range(20):
             svc.request_reload()
