@@ -84,7 +84,14 @@ class RoomProcess:
             raise AssertionError(f"room did not start: {self.log.read_text()}")
         assert "ALSA_CONFIG_PATH" in self.env
 
-    def stop(self) -> str:
+    def stop(self, grace: float = 0.0) -> str:
+        """Stop the room (after ``grace`` seconds for its session to end by itself); its
+        log."""
+        if grace > 0:
+            try:
+                self.proc.wait(grace)
+            except subprocess.TimeoutExpired:
+                pass
         if self.proc.poll() is None:
             self.proc.terminate()
             try:
