@@ -35,9 +35,10 @@ DRIFT_PPM = 40.0
 HERE = Path(__file__).resolve().parent.parent
 
 
-def day(hours: float, seed: int) -> tuple[config.Config, Schedule, Simulator, LiveAnalyzer,
-                                          float]:
-    """bench_day's day: (config, schedule, simulator, live pipeline, SNR in dB)."""
+def day(hours: float, seed: int, block_pulses: int = 1
+        ) -> tuple[config.Config, Schedule, Simulator, LiveAnalyzer, float]:
+    """bench_day's day: (config, schedule, simulator, live pipeline analysing blocks of
+    ``block_pulses`` capture periods, SNR in dB)."""
     rng = np.random.default_rng(seed)
     cfg = config.Config()
     scene = load_scene(str(HERE / "config/scenes/paper-room.yaml"))
@@ -47,7 +48,7 @@ def day(hours: float, seed: int) -> tuple[config.Config, Schedule, Simulator, Li
     snr = float(rng.uniform(10, 12))
     sim = Simulator(scene, cfg, sch, snr_db=snr, seed=seed + 1, drift_ppm=DRIFT_PPM,
                     include_paths=False)
-    return cfg, sch, sim, LiveAnalyzer(cfg, ref), snr
+    return cfg, sch, sim, LiveAnalyzer(cfg, ref, block_pulses=block_pulses), snr
 
 
 def save(args: argparse.Namespace) -> None:
