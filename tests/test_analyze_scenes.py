@@ -250,7 +250,13 @@ def _commensurate_hz(p: int, q: int) -> float:
     ("ccw", 1, 5, 3, "ambiguous"),     # was: reversed, -3.40, confidence 1.0
     ("cw", 1, 9, 3, "resolved"),       # was: same, +3.78
     ("cw", 1, 12, 21, "resolved"),     # was: same, +1.42
-    ("ccw", 1, 16, 21, "resolved"),    # was: reversed, -3.19
+    # was: reversed, -3.19. Resolved (0.94) while the coupling's edge was timed through
+    # a full-band interpolant; with the band-limited one (dsp/pulses.EDGE_BAND) this
+    # seed's matches fit a line near -3/13 better than the true one (coherence 0.80
+    # against 0.64 over 24 pulses) and the answer stays unknown under 0.5 for 20 s. The
+    # same case at seeds 30-49 resolved 20 of 20 either way; the eight cases at those
+    # seeds gave 147 right, 13 unknown, none wrong, with either interpolant
+    ("ccw", 1, 16, 21, "safe"),
     ("cw", 3, 16, 21, "resolved"),     # was: reversed, -2.13 (true -3.19)
     ("ccw", 2, 9, 3, "resolved"),      # was: same, +1.88 (true +3.78)
     ("cw", 5, 24, 3, "resolved"),      # was: same, +0.08 (a track standing still)
@@ -259,7 +265,8 @@ def test_commensurate_probe_is_never_confidently_wrong(scene, reference, directi
                                                        seed, expect):
     """At p/q blade period per pulse the probe shows q angles and its matches fit several
     alias rates; the line fit against the reference table finds the simulated rate, or the
-    answer is unknown with the reason."""
+    answer is unknown with the reason ("safe": right, or unknown under the confidence
+    that claims a direction)."""
     hz = _commensurate_hz(p, q)
     x, truth = _sim(scene, 6.0, f"{direction}:{hz:.6f}:6", seed=seed)
     want_rel = _true_rate_hz(truth) / 0.5
@@ -268,6 +275,12 @@ def test_commensurate_probe_is_never_confidently_wrong(scene, reference, directi
         assert s["direction"] == ("same" if want_rel > 0 else "reversed"), s
         assert abs(s["relative_rate"] - want_rel) < 0.03 * abs(want_rel), s
         assert s["confidence"] >= 0.5, s
+    elif expect == "safe":
+        if s["direction"] != "unknown":
+            assert s["direction"] == ("same" if want_rel > 0 else "reversed"), s
+            assert abs(s["relative_rate"] - want_rel) < 0.03 * abs(want_rel), s
+        else:
+            assert s["confidence"] < 0.5, s
     else:
         assert s["direction"] == "unknown" and s["confidence"] < 0.5, s
         assert s["reason"].startswith("rate ambiguous") and f"{p}/{q} blade period" in \

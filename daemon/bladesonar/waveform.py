@@ -64,17 +64,19 @@ def cfg_pulse(cfg) -> np.ndarray:
     return pulse_shape(cfg.waveform.pulse, cfg.waveform.pulse_samples)
 
 
-def kernel(x: np.ndarray) -> np.ndarray:
-    """Kaiser-windowed full-band sinc at offsets ``x`` (samples); zero for |x| >= HALF_TAPS.
+def kernel(x: np.ndarray, band: float = 1.0) -> np.ndarray:
+    """Kaiser-windowed sinc at offsets ``x`` (samples); zero for |x| >= HALF_TAPS.
 
-    At integer delays it is an exact unit impulse (sinc zeros), so the direct coupling of a
-    pulse on the sample grid stays one sample wide, as the paper's narrow impulse.
+    Full band (``band`` 1, the default): at integer delays it is an exact unit impulse
+    (sinc zeros), so the direct coupling of a pulse on the sample grid stays one sample
+    wide, as the paper's narrow impulse. ``band`` < 1 cuts off at that fraction of the
+    Nyquist frequency (unit gain below it): an interpolant that leaves out the band edge.
     """
     x = np.asarray(x, dtype=np.float64)
     r = x / HALF_TAPS
     inside = np.abs(r) < 1.0
     w = np.where(inside, i0(KAISER_BETA * np.sqrt(np.clip(1.0 - r * r, 0.0, None))), 0.0)
-    return np.sinc(x) * w / _I0_BETA
+    return band * np.sinc(band * x) * w / _I0_BETA
 
 
 def fractional_delay_taps(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
