@@ -673,6 +673,18 @@ def test_score_matches_in_order_and_counts_false_and_missed():
     assert sc.false == [("reversed", 9.0), ("started", 30.0)]
 
 
+def test_an_event_too_near_the_end_to_be_due_counts_only_if_found():
+    """A rest that began 2.2 s before the end of a run (bench_day: 7197.8 s of 7200) is
+    not a missed stop, a stop allowed 3 s; one found in time still counts."""
+    truth = [TruthEvent("started", 100.0, 1), TruthEvent("stopped", 197.8, 0)]
+    sc = score_events(truth, [("started", 100.5)], due_by=197.0)
+    assert not sc.missed and len(sc.truth) == 1 and len(sc.hits) == 1
+    sc = score_events(truth, [("started", 100.5), ("stopped", 199.5)], due_by=197.0)
+    assert not sc.missed and len(sc.truth) == 2 and len(sc.hits) == 2
+    sc = score_events(truth, [], due_by=197.0)
+    assert [e.kind for e in sc.missed] == ["started"]
+
+
 def test_score_names_the_slowest_events_of_each_kind():
     """Stops at 10, 20, 30, 40 s detected 2.0, 2.9, 1.5 and 2.5 s later: the summary
     names the three slowest, slowest first, by their truth time (where to trace)."""

@@ -155,12 +155,15 @@ class Score:
 
 
 def score_events(truth: list[TruthEvent], detected: Iterable[tuple[str, float]], *,
-                 early_s: float = 1.0, late_s: float = 6.0) -> Score:
+                 early_s: float = 1.0, late_s: float = 6.0,
+                 due_by: float | None = None) -> Score:
     """Match detected (kind, time) events to the truth, in time order. A detected event
     matches from ``early_s`` before its truth event, or from when it became true if that
     is earlier (a start as soon as the fan leaves rest, a reversal as soon as the rate
     passes zero: a slow spin-up takes seconds to reach the 0.15 Hz the latency is timed
-    from, and a start called on the way is right), until ``late_s`` after."""
+    from, and a start called on the way is right), until ``late_s`` after. A truth event
+    after ``due_by`` (the end of a run less the longest latency allowed) counts only if
+    it was found: a rest that began 2.2 s before the end was not yet due."""
     sc = Score(truth=list(truth))
     pending = sorted(detected, key=lambda e: e[1])
     used = [False] * len(pending)
@@ -175,6 +178,10 @@ def score_events(truth: list[TruthEvent], detected: Iterable[tuple[str, float]],
                 break
         else:
             sc.missed.append(ev)
+    if due_by is not None:
+        late = [ev for ev in sc.missed if ev.t_s > due_by]
+        sc.missed = [ev for ev in sc.missed if ev.t_s <= due_by]
+        sc.truth = [ev for ev in sc.truth if not any(ev is x for x in late)]
     sc.false = [pending[i] for i in range(len(pending)) if not used[i]]
     return sc
 
