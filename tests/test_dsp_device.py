@@ -25,6 +25,22 @@ def _ring(x: np.ndarray, at: float, amp: float) -> None:
         add_pulse(x, at + 8.7 * j, amp * (-0.7) ** j)
 
 
+def _clipped_ringing_edges(n: int, over: float, drift: float, noise: float
+                           ) -> tuple[PulseAligner, np.ndarray]:
+    """n pulses of a ringing coupling ``over`` times full scale, clipped, aligned: (the
+    aligner, the edge errors against the truth once settled, from pulse 40); every pulse
+    but the first and last must be usable."""
+    x, edges, _ = pulse_train(n, PRI, rate=0.05, drift_ppm=drift, noise=noise, direct=0.0)
+    for e in edges:
+        _ring(x, e, over)
+    x = np.clip(x, -FULL, FULL)
+    a = PulseAligner(PRI, Gate(0, PRI - 24, FS, 343.0))
+    got = AlignedPulses.concat([a.push(x), a.flush()], PRI - 24)
+    keep = got.index < n
+    assert (got.status[keep] == OK)[1:-1].all(), got.status
+    return a, (got.edges[keep] - edges[got.index[keep]])[40:]
+
+
 @pytest.mark.parametrize("over, drift", [(4.0, 80.0), (8.0, -100.0), (40.0, 0.0),
                                          (8.0, 0.0)])
 def test_clipped_coupling_is_timed_and_its_pulses_kept(over, drift):
@@ -34,18 +50,8 @@ def test_clipped_coupling_is_timed_and_its_pulses_kept(over, drift):
     drift up to 18 dB of overdrive (documented limit; a constant offset is only a range
     offset)."""
     n = 120
-    x, edges, _ = pulse_train(n, PRI, rate=0.05, drift_ppm=drift, noise=1e-4, direct=0.0)
-    for e in edges:
-        _ring(x, e, over)
-    x = np.clip(x, -FULL, FULL)
-    a = PulseAligner(PRI, Gate(0, PRI - 24, FS, 343.0))
-    got = AlignedPulses.concat([a.push(x), a.flush()], PRI - 24)
-    keep = got.index < n
-    ok = got.status[keep] == OK
-    assert ok[1:-1].all(), got.status
+    a, settled = _clipped_ringing_edges(n, over, drift, noise=1e-4)
     assert a.coupling_clipped >= n - 4
-    err = got.edges[keep] - edges[got.index[keep]]
-    settled = err[40:]
     assert np.ptp(settled) < (1e-3 if drift == 0 else 0.35)   # one line
     assert abs(a.period - PRI * (1 + drift * 1e-6)) < (1e-4 if drift == 0 else 0.03)
     # clipping inside the coupling is not held against a pulse: beyond it, it is
@@ -60,16 +66,7 @@ def test_clipped_coupling_is_timed_by_its_ringing_at_high_snr(over, drift):
     simulator's small speaker), a change between pulses that kept a fan at rest at
     40-60 dB from being called stopped; the unclipped ringing times it as a band-limited
     peak is timed."""
-    n = 200
-    x, edges, _ = pulse_train(n, PRI, rate=0.05, drift_ppm=drift, noise=1e-6, direct=0.0)
-    for e in edges:
-        _ring(x, e, over)
-    x = np.clip(x, -FULL, FULL)
-    a = PulseAligner(PRI, Gate(0, PRI - 24, FS, 343.0))
-    got = AlignedPulses.concat([a.push(x), a.flush()], PRI - 24)
-    keep = got.index < n
-    assert (got.status[keep] == OK)[1:-1].all(), got.status
-    err = (got.edges[keep] - edges[got.index[keep]])[40:]
+    _, err = _clipped_ringing_edges(200, over, drift, noise=1e-6)
     assert np.max(np.abs(err - np.mean(err))) < 2e-3
 
 

@@ -104,16 +104,21 @@ def test_edges_measured_ahead_are_those_measured_one_by_one(monkeypatch):
     assert (ahead.status == DROPOUT).sum() >= 1
 
 
-@pytest.mark.parametrize("ppm", [200.0, -200.0])
-def test_200ppm_drift_stays_aligned(ppm):
-    """0.26 sample per pulse of clock mismatch: every edge within 0.05 sample of truth."""
-    n = 120
-    x, edges, _ = pulse_train(n, PRI, rate=0.05, drift_ppm=ppm, noise=2e-3, seed=2,
-                              first_edge=431.6)
+def _drifting_edges(n: int, ppm: float, **train) -> tuple[AlignedPulses, np.ndarray,
+                                                          np.ndarray]:
+    """A pulse train under ``ppm`` of drift, aligned: (the pulses, which are OK, the OK
+    edges' errors against the truth); all but three must be OK."""
+    x, edges, _ = pulse_train(n, PRI, drift_ppm=ppm, **train)
     a = align(x, PRI, _gate())
     ok = a.status == OK
     assert ok.sum() >= n - 3
-    err = a.edges[ok] - edges[a.index[ok]]
+    return a, ok, a.edges[ok] - edges[a.index[ok]]
+
+
+@pytest.mark.parametrize("ppm", [200.0, -200.0])
+def test_200ppm_drift_stays_aligned(ppm):
+    """0.26 sample per pulse of clock mismatch: every edge within 0.05 sample of truth."""
+    a, ok, err = _drifting_edges(120, ppm, rate=0.05, noise=2e-3, seed=2, first_edge=431.6)
     assert np.max(np.abs(err)) < 0.05
     # the static echo 500 samples after the edge is in the same gated sample in every pulse
     g = _gate()
@@ -132,13 +137,7 @@ def test_edges_lie_on_the_schedule_line_at_high_snr(ppm):
     through a full-band interpolant was off by a function of it, 0.023 sample rms (up to
     0.04) at any SNR: a change between pulses that repeats like a turning fan's, which
     kept a fan at rest at 40 dB from being called stopped."""
-    n = 150
-    x, edges, _ = pulse_train(n, PRI, rate=0.0, drift_ppm=ppm, noise=1e-6, seed=3,
-                              first_edge=377.25)
-    a = align(x, PRI, _gate())
-    ok = a.status == OK
-    assert ok.sum() >= n - 3
-    err = a.edges[ok] - edges[a.index[ok]]
+    _, _, err = _drifting_edges(150, ppm, rate=0.0, noise=1e-6, seed=3, first_edge=377.25)
     assert np.max(np.abs(err - np.mean(err))) < 1e-3
     assert abs(np.mean(err)) < 1e-3
 
