@@ -148,8 +148,8 @@ def default_grid(quick: bool = False, prf_hz: float = 44100 / 1297) -> Grid:
         Family("blades", ("paper-room",), (3, 5), (1.0,), (0.0, 10.0, 20.0), WINDOWS, 10),
         Family("rooms", ROOMS[1:], (4,), (1.0,), (0.0, 10.0, 20.0), WINDOWS, 10),
         Family("reversal", ("paper-room",), (4,), (1.0,), SNRS, (), 10, reversal=True),
-        Family("transitions", ("paper-room",), (4,), (1.0,), (0.0, 5.0, 10.0, 20.0, 30.0), (),
-               6, transitions=True),
+        Family("transitions", ("paper-room",), (4,), (1.0,),
+               (0.0, 5.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0), (), 6, transitions=True),
         Family("nuisances", ("paper-room",), (4,), (0.84,), (0.0, 10.0), (5.0,), 6,
                nuisances=tuple(PRESETS)),
     ))

@@ -17,7 +17,7 @@ from typing import Any
 EPILOG = """\
 The full sweep (observation window 0.25-30 s, SNR -5..30 dB, rate ratios 0..9, 3-5 blades,
 4 rooms, reversals, and the latency of started/stopped/reversed events on ramped
-transitions at 0-30 dB) takes a few minutes on 2 cores; --quick is a small version for CI.
+transitions at 0-60 dB) takes a few minutes on 2 cores; --quick is a small version for CI.
 A custom sweep: --grid GRID.json with {"families": [{"name": ..., "scenes": [...],
 "blades": [...], "ratios": [...], "snrs_db": [...], "windows_s": [...], "seeds": N,
 "reversal": false, "transitions": false}, ...], "ref_seconds": 20, ...} (fields of
