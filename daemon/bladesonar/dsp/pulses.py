@@ -71,7 +71,7 @@ TEMPLATE_AFTER = 112
 #: Correlation coefficient below which a clipped coupling does not match the first one (a
 #: full-band coupling half a sample off the first one's grid correlates only about 0.6).
 TEMPLATE_MIN_CORR = 0.4
-#: Fewest samples of a clipped coupling's clean tail (its ringing, KERNEL_HALF + 1 samples
+#: Fewest samples of a clipped coupling's clean tail (its ringing, KERNEL_HALF + 5 samples
 #: or more from any clipped one) that time it (:func:`_tail_shifts`); with fewer, the
 #: plateaus' edges do.
 TAIL_MIN = 24
@@ -119,7 +119,7 @@ def fractional_taps(frac: np.ndarray) -> np.ndarray:
 #: 1 / (drift * PRI) pulses, and the error, times the strong static echoes, is a change
 #: that repeats like a turning fan's: at 40 dB a fan at rest was never called stopped.
 #: Below 0.7 of Nyquist (simulated, 10-100 ppm): 2e-6 sample rms at 80 dB, 0.0013 at
-#: 10 dB (0.023 before), 0.004 at 0 dB (tests/test_pulses.py).
+#: 10 dB (0.023 before), 0.004 at 0 dB (tests/test_dsp_pulses.py).
 EDGE_BAND = 0.7
 _GRID = np.arange(-1.0, 1.0 + _EDGE_GRID / 2, _EDGE_GRID)
 _GRID_W = kernel(_GRID[:, None] - np.arange(-KERNEL_HALF, KERNEL_HALF + 1)[None, :],
