@@ -151,7 +151,7 @@ def test_a_stop_is_called_on_a_clipping_device_at_high_snr(scene, snr_db):
     schedule, seconds = "ccw:0.45:10,stop:0:14~6,cw:0.4:10~4", 34.0
     x, truth = simulate(scene, cfg, seconds, schedule=schedule, seed=4, snr_db=snr_db,
                         drift_ppm=DRIFT_PPM, nuisances=nz)
-    assert truth["summary"]["clipped_samples"] > 1000           # every coupling clips
+    assert truth["summary"]["clipped_samples"] > 0.9 * len(truth["pulses"])   # they clip
     _, rows = analyze(x, cfg, ref, track=True)
     score = score_events(truth_events(parse(schedule), seconds),
                          [(r["event"], true_time(r["t_s"], DRIFT_PPM))
