@@ -122,8 +122,9 @@ def fractional_taps(frac: np.ndarray) -> np.ndarray:
 #: 10 dB (0.023 before), 0.004 at 0 dB (tests/test_dsp_pulses.py).
 EDGE_BAND = 0.7
 _GRID = np.arange(-1.0, 1.0 + _EDGE_GRID / 2, _EDGE_GRID)
-_GRID_W = kernel(_GRID[:, None] - np.arange(-KERNEL_HALF, KERNEL_HALF + 1)[None, :],
-                 EDGE_BAND)
+#: offsets of the samples an edge or a tail sample is read from, about its nearest one
+_TAPS = np.arange(-KERNEL_HALF, KERNEL_HALF + 1)
+_GRID_W = kernel(_GRID[:, None] - _TAPS[None, :], EDGE_BAND)
 
 
 def _crossings(x: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
@@ -155,8 +156,7 @@ def _crossing_offset(template: np.ndarray, seg: np.ndarray, level: float) -> flo
     return float(np.clip(np.mean(shifts), -1.0, 1.0))
 
 
-_TAIL_TAPS = np.arange(-KERNEL_HALF, KERNEL_HALF + 1)
-_TAIL_W0 = kernel(-_TAIL_TAPS.astype(np.float64), EDGE_BAND)
+_TAIL_W0 = kernel(-_TAPS.astype(np.float64), EDGE_BAND)
 
 
 def _tail_shifts(template: np.ndarray, level: float
@@ -178,7 +178,7 @@ def _tail_shifts(template: np.ndarray, level: float
     idx = idx[(idx >= reach) & (idx < len(template) - reach)]
     if len(idx) < TAIL_MIN:
         return None
-    m = _TAIL_TAPS
+    m = _TAPS
     # row g: template(j - d_g) = sum_m template[j + m] k(-m - d_g)
     w = kernel(-m[None, :] - _GRID[:, None], EDGE_BAND)        # (grid, taps)
     shifted = w @ template[idx[:, None] + m[None, :]].T          # (grid, tail)
@@ -192,7 +192,7 @@ def _tail_offset(shifts: tuple[np.ndarray, np.ndarray, np.ndarray], seg: np.ndar
     refined by a parabola; None when the tail is clipped here, does not resemble the
     first one's (:data:`TAIL_MIN_CORR`) or fits best at the grid's end."""
     idx, rows, norms = shifts
-    near = seg[idx[:, None] + _TAIL_TAPS[None, :]]               # (tail, taps)
+    near = seg[idx[:, None] + _TAPS[None, :]]                    # (tail, taps)
     clean = np.all(np.isfinite(near) & (np.abs(near) < level), axis=1)
     if int(np.count_nonzero(clean)) < TAIL_MIN:
         return None
@@ -207,10 +207,17 @@ def _tail_offset(shifts: tuple[np.ndarray, np.ndarray, np.ndarray], seg: np.ndar
     g = int(np.argmax(r))
     if not 0 < g < len(r) - 1 or not r[g] >= TAIL_MIN_CORR * float(np.sqrt(y @ y)):
         return None
-    a, b, c = r[g - 1], r[g], r[g + 1]
+    return _grid_vertex(r, g)[0]
+
+
+def _grid_vertex(v: np.ndarray, g: int) -> tuple[float, float]:
+    """(position, value) of the parabola through ``v`` at grid steps g - 1, g, g + 1: the
+    sub-step refinement of a maximum on the edge grid (``_GRID``)."""
+    a, b, c = v[g - 1], v[g], v[g + 1]
     den = a - 2.0 * b + c
     d = 0.5 * (a - c) / den if den < 0 else 0.0
-    return float(_GRID[g] + min(max(d, -1.0), 1.0) * _EDGE_GRID)
+    d = min(max(d, -1.0), 1.0)
+    return float(_GRID[g] + d * _EDGE_GRID), float(b - 0.25 * (a - c) * d)
 
 
 def refine_peak(seg: np.ndarray) -> tuple[float, float]:
@@ -229,13 +236,7 @@ def refine_peak(seg: np.ndarray) -> tuple[float, float]:
         Interpolated peak value.
     """
     v = _GRID_W @ seg
-    g = int(np.argmax(v))
-    g = min(max(g, 1), len(v) - 2)
-    a, b, c = v[g - 1], v[g], v[g + 1]
-    den = a - 2.0 * b + c
-    d = 0.5 * (a - c) / den if den < 0 else 0.0
-    d = min(max(d, -1.0), 1.0)
-    return float(_GRID[g] + d * _EDGE_GRID), float(b - 0.25 * (a - c) * d)
+    return _grid_vertex(v, min(max(int(np.argmax(v)), 1), len(v) - 2))
 
 
 @dataclass

@@ -179,9 +179,9 @@ def score_events(truth: list[TruthEvent], detected: Iterable[tuple[str, float]],
         else:
             sc.missed.append(ev)
     if due_by is not None:
-        late = [ev for ev in sc.missed if ev.t_s > due_by]
+        found = {id(ev) for ev, _ in sc.hits}
+        sc.truth = [ev for ev in sc.truth if ev.t_s <= due_by or id(ev) in found]
         sc.missed = [ev for ev in sc.missed if ev.t_s <= due_by]
-        sc.truth = [ev for ev in sc.truth if not any(ev is x for x in late)]
     sc.false = [pending[i] for i in range(len(pending)) if not used[i]]
     return sc
 
