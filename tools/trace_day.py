@@ -4,10 +4,11 @@ A developer's tool: the day takes minutes per simulated hour to reach a late mom
 replay a second or two.
 
   .venv/bin/python tools/trace_day.py save --hours 4 --seed 14 --at 13392 13505 --out DIR
+  .venv/bin/python tools/trace_day.py save --random-scene --hours 0.4 --seed 7 --at 800 --out DIR
   .venv/bin/python tools/trace_day.py replay DIR/seed14_13505.pkl [--from T] [--to T]
 
 Times are the day's stream times (s), as bench_day's false/missed details give them. The
-day is bench_day's own (:func:`day`); a change of the code under test after a save is
+day is bench_day's own (tools/days.py); a change of the code under test after a save is
 replayed from the saved state, so save again after changing what runs before the moment.
 """
 
@@ -21,40 +22,20 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from days import DRIFT_PPM, day, random_day  # tools/days.py
 
-from bladesonar import config
-from bladesonar.analysis import build_reference
-from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer
-from bladesonar.sim.render import Simulator, simulate
-from bladesonar.sim.schedule import Schedule, ordinary_use, parse
+from bladesonar.sim.schedule import Schedule
 from bladesonar.sim.score import true_time
-
-#: the capture clock's drift on a bench_day day (the issue's test condition)
-DRIFT_PPM = 40.0
-HERE = Path(__file__).resolve().parent.parent
-
-
-def day(hours: float, seed: int, block_pulses: int = 1,
-        snr_db: tuple[float, float] = (10.0, 12.0), drift_ppm: float = DRIFT_PPM
-        ) -> tuple[config.Config, Schedule, Simulator, LiveAnalyzer, float]:
-    """bench_day's day: (config, schedule, simulator, live pipeline analysing blocks of
-    ``block_pulses`` capture periods, SNR in dB). The SNR is drawn from ``snr_db`` (the
-    issue's 10-12 dB by default: the same draw, so a seed gives the same day)."""
-    rng = np.random.default_rng(seed)
-    cfg = config.Config()
-    scene = load_scene(str(HERE / "config/scenes/paper-room.yaml"))
-    sch = parse(ordinary_use(rng, hours * 3600.0))
-    x, _ = simulate(scene, cfg, 20.0, schedule="ccw:0.45:20", seed=seed, snr_db=20.0)
-    ref = build_reference(x, cfg, "ccw")
-    snr = float(rng.uniform(*snr_db))
-    sim = Simulator(scene, cfg, sch, snr_db=snr, seed=seed + 1, drift_ppm=drift_ppm,
-                    include_paths=False)
-    return cfg, sch, sim, LiveAnalyzer(cfg, ref, block_pulses=block_pulses), snr
 
 
 def save(args: argparse.Namespace) -> None:
-    cfg, sch, sim, live, _ = day(args.hours, args.seed)
+    if args.random_scene:
+        cfg, sch, sim, live, dr = random_day(args.hours, args.seed)
+        drift = dr.drift_ppm
+    else:
+        cfg, sch, sim, live, _ = day(args.hours, args.seed)
+        drift = DRIFT_PPM
     pri, fs = cfg.waveform.pri_samples, cfg.audio.sample_rate
     marks = sorted(args.at)
     out = Path(args.out)
@@ -76,7 +57,7 @@ def save(args: argparse.Namespace) -> None:
                 # its audio: the rest of this chunk's pulses on, then every later chunk
                 pending.append({"at": marks.pop(0), "pos": pos, "live": pickle.dumps(live),
                                 "audio": [buf[i * pri:]], "schedule": sch,
-                                "drift_ppm": DRIFT_PPM})
+                                "drift_ppm": drift})
             live.push(buf[i * pri:(i + 1) * pri], pos)
             live.take_events()
             pos += pri
@@ -144,6 +125,8 @@ def main(argv: list[str] | None = None) -> None:
     sv = sub.add_parser("save", help="run a day and save the pipeline before each moment")
     sv.add_argument("--hours", type=float, default=1.0)
     sv.add_argument("--seed", type=int, default=1)
+    sv.add_argument("--random-scene", action="store_true",
+                    help="the seed names a random scene (bench_day --random-scenes)")
     sv.add_argument("--at", type=float, nargs="+", required=True, help="stream times (s)")
     sv.add_argument("--lead", type=float, default=25.0, help="saved this long before (s)")
     sv.add_argument("--tail", type=float, default=10.0, help="audio kept after (s)")

@@ -353,21 +353,28 @@ def _segment(item: Any, key: str, source: str | None) -> Segment:
     return Segment(d, rate, secs, ramp_s)
 
 
-def ordinary_use(rng: np.random.Generator, seconds: float) -> str:
+def ordinary_use(rng: np.random.Generator, seconds: float, *,
+                 rates: tuple[float, float] = (0.2, 0.6),
+                 first: tuple[str, float] = ("ccw", 0.45)) -> str:
     """A schedule of ordinary use (what tools/bench_day and tools/soak simulate): 60 s at
-    0.45 Hz ccw, then segments of 20-120 s, each off (a spin-down of 5-12 s) or on at
-    0.2-0.6 Hz in a random direction (a spin-up of 3-8 s from rest, a change or a
-    reversal through zero, longer for a larger change), until ``seconds``. Draws from
-    ``rng`` in a fixed order, so a seed gives the same day."""
-    segs, t, rate = ["ccw:0.45:60"], 60.0, 0.45
+    ``first`` (0.45 Hz ccw), then segments of 20-120 s, each off (a spin-down of 5-12 s,
+    longer from above 0.6 Hz: at most 0.12 Hz/s) or on at a speed drawn from ``rates``
+    (0.2-0.6 Hz) in a random direction (a spin-up of 3-8 s from rest, a change or a
+    reversal through zero, longer for a larger change: at most 0.15 Hz/s), until
+    ``seconds``. Draws from ``rng`` in a fixed order, so a seed gives the same day."""
+    lo, hi = rates
+    if not 0.0 < lo <= hi:
+        raise ValueError(f"rates must be 0 < lo <= hi Hz, got {rates!r}")
+    segs, t = [f"{first[0]}:{first[1]:g}:60"], 60.0
+    rate = first[1] * _SIGN[first[0]]
     while t < seconds:
         dur = float(rng.uniform(20, 120))
         if rate != 0 and rng.uniform() < 0.3:
-            ramp = float(rng.uniform(5, 12))
+            ramp = float(rng.uniform(5, 12)) * max(abs(rate) / 0.6, 1.0)
             rate = 0.0
             segs.append(f"stop:0:{max(dur, ramp + 1):.2f}~{ramp:.2f}")
         else:
-            new = float(rng.uniform(0.2, 0.6)) * (1 if rng.uniform() < 0.5 else -1)
+            new = float(rng.uniform(lo, hi)) * (1 if rng.uniform() < 0.5 else -1)
             ramp = float(rng.uniform(3, 8)) * max(abs(new - rate) / 0.45, 0.5)
             rate = new
             segs.append(f"{'ccw' if new > 0 else 'cw'}:{abs(new):.3f}:"

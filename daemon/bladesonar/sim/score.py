@@ -122,6 +122,7 @@ class Score:
         error percentiles."""
         def stats(xs: Sequence[float]) -> dict | None:
             return None if not xs else {"n": len(xs), "median": round(float(np.median(xs)), 2),
+                                        "p95": round(float(np.percentile(xs, 95)), 2),
                                         "max": round(float(np.max(xs)), 2)}
         def pct(xs: Sequence[float]) -> dict | None:
             return None if not len(xs) else {
@@ -152,6 +153,24 @@ class Score:
                 "longest": [(round(t, 2), round(d, 2)) for t, d in
                             sorted(self.gaps, key=lambda g: -g[1])[:5]]},
         }
+
+
+def merge(scores: Iterable[Score]) -> Score:
+    """Several runs' scores as one (a sweep over scenes): events, states and errors
+    pooled."""
+    out = Score(truth=[])
+    for sc in scores:
+        out.truth += sc.truth
+        out.hits += sc.hits
+        out.false += sc.false
+        out.missed += sc.missed
+        out.right += sc.right
+        out.unknown += sc.unknown
+        out.wrong += sc.wrong
+        out.rate_errors += sc.rate_errors
+        out.ramp_errors += sc.ramp_errors
+        out.gaps += sc.gaps
+    return out
 
 
 def score_events(truth: list[TruthEvent], detected: Iterable[tuple[str, float]], *,

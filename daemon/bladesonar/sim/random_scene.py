@@ -1,0 +1,197 @@
+"""Random scenes for sweeps: rooms, sensor places, fans and devices the tuning never saw
+(pure).
+
+A scene is drawn from its seed alone, so a seed names the same room, fan, device and day
+everywhere (``tools/bench_day --random-scenes``). Seeds are split once and for all into a
+tuning set and a held-out set (:func:`split_of`): tuning decisions may look at the first,
+never at the second, whose figures are the ones reported.
+
+What is drawn (2-D floor plans, sim/scene.py; the ceiling height is drawn for the 3-D
+scenes to come and only sets how far the late reverberation carries):
+
+- a rectangular or L-shaped room, 3-7 m on a side, each wall reflecting 0.2-0.9 of the
+  pressure (a curtain to bare plaster), optionally a reverberant tail (RT60 0.2-0.8 s);
+- a fan of 3-6 blades, 0.4-0.75 m long, anywhere with its tips 0.3 m clear of the walls;
+- the sensor anywhere 0.25 m inside the walls, 0.5 m clear of the blade tips (a floor
+  plan has no height: in a room the blades pass a metre or more above the device, and a
+  blade 0.15 m from the microphone clips it) and at most 4 m from the hub (beyond about
+  5 m the echoes fold into the next pulse), optionally behind a phone's small speaker;
+- the fan's speeds: a range [lo, hi] within 0.1-2 Hz (hi at most 3.5 lo), the reference
+  taken at a speed inside it (a few per cent off any rate at which a 20 s reference
+  shows only a few blade angles, as ``reference`` advises);
+- the speaker-to-microphone coupling 1-8 times what a reflector 1 m away returns (the
+  paper room's 1 to a phone's clipped coupling, 4 times full scale);
+- SNR 6-30 dB, capture clock drift -150..+150 ppm.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..dsp import aliasing
+from .nuisances import Nuisances
+from .scene import Scene
+from .schedule import ordinary_use
+
+#: Seeds from this one on are held out: no tuning decision may look at them.
+HELD_OUT_FROM = 100_000
+#: The first seed of each set (tools/bench_day --random-scenes N takes N from there).
+FIRST_SEED = {"tuning": 1, "held-out": HELD_OUT_FROM + 1}
+#: Seconds of the reference recording (as bench_day's and the daemon's learning).
+REFERENCE_S = 20.0
+
+SIDE_M = (3.0, 7.0)
+CEILING_M = (2.4, 3.2)
+REFLECTION = (0.2, 0.9)
+BLADES = (3, 6)
+BLADE_M = (0.4, 0.75)
+RATE_HZ = (0.1, 2.0)
+SPAN = 3.5
+SNR_DB = (6.0, 30.0)
+DRIFT_PPM = 150.0
+MAX_RANGE_M = 4.0
+TIP_CLEARANCE_M = 0.5
+COUPLING = (1.0, 8.0)
+
+
+def split_of(seed: int) -> str:
+    """'tuning' or 'held-out'."""
+    return "held-out" if seed >= HELD_OUT_FROM else "tuning"
+
+
+@dataclass(frozen=True)
+class SceneDraw:
+    """One random scene and the day lived in it."""
+
+    seed: int
+    scene: Scene
+    blades: int
+    snr_db: float
+    drift_ppm: float
+    rates_hz: tuple[float, float]
+    ref_rate_hz: float
+    ref_direction: str
+    ceiling_m: float
+    nuisances: Nuisances = field(default_factory=Nuisances)
+
+    @property
+    def split(self) -> str:
+        return split_of(self.seed)
+
+    def schedule(self, seconds: float) -> str:
+        """The day: ordinary use at this fan's speeds, starting at the reference's."""
+        rng = np.random.default_rng([self.seed, 2])
+        return ordinary_use(rng, seconds, rates=self.rates_hz,
+                            first=(self.ref_direction, round(self.ref_rate_hz, 3)))
+
+    def describe(self) -> dict[str, Any]:
+        s = self.scene
+        return {"seed": self.seed, "split": self.split,
+                "room": [[round(x, 3), round(y, 3)] for x, y in s.vertices],
+                "reflection": [round(r, 2) for r in s.wall_reflection],
+                "sensor": [round(c, 2) for c in s.sensor],
+                "fan_centre": [round(c, 2) for c in s.fan_centre], "blades": self.blades,
+                "blade_length_m": round(s.blade_length_m, 2),
+                "sensor_fan_m": round(s.sensor_fan_distance_m, 2),
+                "ceiling_m": round(self.ceiling_m, 2),
+                "coupling_gain": round(s.coupling_gain, 2), "snr_db": round(self.snr_db, 1),
+                "drift_ppm": round(self.drift_ppm, 1),
+                "rates_hz": [round(r, 3) for r in self.rates_hz],
+                "reference": f"{self.ref_direction}:{self.ref_rate_hz:.3f}",
+                "nuisances": self.nuisances.active}
+
+
+def _room(rng: np.random.Generator) -> list[list[float]]:
+    w, d = (float(rng.uniform(*SIDE_M)) for _ in range(2))
+    if rng.uniform() < 0.3:                      # an L: one corner cut out
+        cw, cd = float(rng.uniform(0.25, 0.45)) * w, float(rng.uniform(0.25, 0.45)) * d
+        return [[0.0, 0.0], [w, 0.0], [w, d - cd], [w - cw, d - cd], [w - cw, d], [0.0, d]]
+    return [[0.0, 0.0], [w, 0.0], [w, d], [0.0, d]]
+
+
+def _clearance(p: np.ndarray, V: np.ndarray) -> float:
+    A, B = V, np.roll(V, -1, axis=0)
+    dv = B - A
+    t = np.clip(np.sum((p - A) * dv, axis=1) / np.sum(dv * dv, axis=1), 0.0, 1.0)
+    return float(np.hypot(*(p - (A + t[:, None] * dv)).T).min())
+
+
+def _inside(p: np.ndarray, V: np.ndarray) -> bool:
+    x, y = p
+    inside = False
+    for (x1, y1), (x2, y2) in zip(V, np.roll(V, -1, axis=0), strict=True):
+        if (y1 > y) != (y2 > y) and x1 + (y - y1) * (x2 - x1) / (y2 - y1) > x:
+            inside = not inside
+    return inside
+
+
+def _point(rng: np.random.Generator, V: np.ndarray, clear: float, ok=lambda p: True
+           ) -> np.ndarray | None:
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    for _ in range(500):
+        p = rng.uniform(lo, hi)
+        if _inside(p, V) and _clearance(p, V) >= clear and ok(p):
+            return p
+    return None
+
+
+def _reference_rate(rng: np.random.Generator, lo: float, hi: float, blades: int,
+                    prf: float) -> float:
+    """A speed in [lo, hi] whose 20 s reference shows the blade at many angles."""
+    span = int(REFERENCE_S * prf)
+    r = float(np.exp(rng.uniform(math.log(lo), math.log(hi))))
+    for _ in range(50):
+        if aliasing.folded_angles(r * blades / prf, span) is None:
+            return r
+        r *= 1.03 if r * 1.03 <= hi else 0.97
+    return r
+
+
+def draw(seed: int, prf: float = 44100.0 / 1297) -> SceneDraw:
+    """The scene of ``seed`` (same seed, same scene); ``prf`` the config's, Hz."""
+    rng = np.random.default_rng([seed, 1])
+    while True:
+        verts = _room(rng)
+        V = np.asarray(verts)
+        K = int(rng.integers(BLADES[0], BLADES[1] + 1))
+        length = float(rng.uniform(*BLADE_M))
+        hub = float(rng.uniform(0.05, 0.15))
+        tip = hub + length
+        centre = _point(rng, V, tip + 0.3)
+        if centre is None:
+            continue
+        sensor = _point(rng, V, 0.25, lambda p, c=centre, t=tip:
+                        t + TIP_CLEARANCE_M <= math.dist(p, c) <= MAX_RANGE_M)
+        if sensor is not None:
+            break
+    refl = [round(float(rng.uniform(*REFLECTION)), 3) for _ in verts]
+    ceiling = float(rng.uniform(*CEILING_M))
+    lo = float(np.exp(rng.uniform(math.log(RATE_HZ[0]), math.log(0.6))))
+    hi = min(lo * float(rng.uniform(2.0, SPAN)), RATE_HZ[1])
+    ref = _reference_rate(rng, lo, hi, K, prf)
+    ref_dir = "ccw" if rng.uniform() < 0.5 else "cw"
+    coupling = float(np.exp(rng.uniform(0.0, math.log(COUPLING[1]))))
+    snr = float(rng.uniform(*SNR_DB))
+    drift = float(rng.uniform(-DRIFT_PPM, DRIFT_PPM))
+    nz: dict[str, Any] = {}
+    if rng.uniform() < 0.5:                      # a reverberant room
+        nz["rt60_s"] = round(float(rng.uniform(0.2, 0.8)) * ceiling / 2.8, 3)
+        nz["reverb_db"] = round(float(rng.uniform(-12.0, 0.0)), 1)
+    if rng.uniform() < 0.5:                      # a phone's small speaker
+        nz["speaker_highpass_hz"] = round(float(rng.uniform(300.0, 800.0)), 0)
+        nz["speaker_resonance_hz"] = round(float(rng.uniform(1500.0, 4000.0)), 0)
+    scene = Scene.from_mapping({
+        "name": f"random-{seed}",
+        "room": {"vertices": verts, "reflection": refl},
+        "sensor": [float(sensor[0]), float(sensor[1])], "coupling_gain": coupling,
+        "fan": {"centre": [float(centre[0]), float(centre[1])], "blades": K,
+                "blade_length_m": length, "hub_radius_m": hub,
+                "start_angle_deg": float(rng.uniform(0.0, 360.0))},
+    })
+    return SceneDraw(seed=seed, scene=scene, blades=K, snr_db=snr, drift_ppm=drift,
+                     rates_hz=(lo, hi), ref_rate_hz=ref, ref_direction=ref_dir,
+                     ceiling_m=ceiling, nuisances=Nuisances(**nz))

@@ -1,0 +1,104 @@
+"""Random scenes for the sweeps (sim/random_scene.py): a seed names one scene, the tuning
+and held-out sets never share a seed, and every scene stays inside the envelope the
+issue asks the product to hold (rooms, sensor places, fans, speeds, SNR, drift), checked
+on the drawn geometry itself rather than on the drawing code's own numbers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bladesonar import config
+from bladesonar.dsp import aliasing
+from bladesonar.sim import random_scene as rs
+from bladesonar.sim.schedule import parse
+from bladesonar.sim.score import Score, merge
+
+SEEDS = list(range(1, 41)) + list(range(rs.HELD_OUT_FROM + 1, rs.HELD_OUT_FROM + 21))
+
+
+def _wall_distance(p, verts):
+    V = np.asarray(verts, float)
+    A, B = V, np.roll(V, -1, axis=0)
+    best = math.inf
+    for a, b in zip(A, B, strict=True):
+        d = b - a
+        t = min(max(float(np.dot(p - a, d) / np.dot(d, d)), 0.0), 1.0)
+        best = min(best, float(np.hypot(*(p - (a + t * d)))))
+    return best
+
+
+def test_a_seed_names_one_scene_and_the_sets_do_not_overlap():
+    assert rs.draw(7).describe() == rs.draw(7).describe()
+    assert rs.draw(7).schedule(600.0) == rs.draw(7).schedule(600.0)
+    assert rs.draw(7).describe() != rs.draw(8).describe()
+    assert rs.split_of(rs.FIRST_SEED["tuning"]) == "tuning"
+    assert rs.split_of(rs.FIRST_SEED["held-out"]) == "held-out"
+    assert rs.split_of(rs.HELD_OUT_FROM - 1) == "tuning"
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_every_scene_lies_inside_the_sweep_envelope(seed):
+    dr = rs.draw(seed)
+    s = dr.scene
+    V = np.asarray(s.vertices)
+    w, d = np.ptp(V[:, 0]), np.ptp(V[:, 1])
+    assert 3.0 <= w <= 7.0 and 3.0 <= d <= 7.0
+    assert len(V) in (4, 6)
+    assert all(0.2 <= r <= 0.9 for r in s.wall_reflection)
+    assert 3 <= dr.blades <= 6 and s.K == dr.blades
+    assert 0.4 <= s.blade_length_m <= 0.75
+    C, S = np.asarray(s.fan_centre), np.asarray(s.sensor)
+    assert _wall_distance(C, V) >= s.tip_radius_m + 0.3 - 1e-9
+    assert _wall_distance(S, V) >= 0.25 - 1e-9
+    dist = float(np.hypot(*(S - C)))
+    assert s.tip_radius_m + 0.5 - 1e-9 <= dist <= 4.0 + 1e-9
+    lo, hi = dr.rates_hz
+    assert 0.1 - 1e-9 <= lo <= hi <= 2.0 + 1e-9 and hi <= 3.5 * lo + 1e-9
+    assert lo <= dr.ref_rate_hz <= hi
+    prf = config.Config().prf_hz
+    # the reference sees many blade angles (what `reference` advises)
+    assert aliasing.folded_angles(dr.ref_rate_hz * dr.blades / prf, int(20 * prf)) is None
+    # under the aliasing limit PRF / (2 K) and the reference's phase step
+    assert hi < prf / (2 * dr.blades)
+    assert dr.ref_rate_hz * dr.blades / prf <= config.Config().analysis.max_phase_per_pulse
+    assert 6.0 <= dr.snr_db <= 30.0 and abs(dr.drift_ppm) <= 150.0
+    assert 2.4 <= dr.ceiling_m <= 3.2
+
+
+@pytest.mark.parametrize("seed", [3, rs.HELD_OUT_FROM + 3])
+def test_a_scene_day_is_ordinary_use_at_the_fans_own_speeds(seed):
+    """Starts at the reference's speed and direction; each speed from the fan's range;
+    no ramp steeper than the tracker's steepest (0.15 Hz/s)."""
+    dr = rs.draw(seed)
+    sch = parse(dr.schedule(3 * 3600.0))
+    first = sch.segments[0]
+    assert first.direction == dr.ref_direction
+    assert first.rate_hz == pytest.approx(dr.ref_rate_hz, abs=1e-3)
+    lo, hi = dr.rates_hz
+    prev = first.signed_hz
+    steepest = config.Config().tracking.max_ramp_hz_s
+    for seg in sch.segments[1:]:
+        assert seg.rate_hz == 0.0 or lo - 1e-3 <= seg.rate_hz <= hi + 1e-3
+        if seg.ramp_s > 0:
+            assert abs(seg.signed_hz - prev) / seg.ramp_s <= steepest + 1e-9
+        prev = seg.signed_hz
+
+
+def test_scores_merge_by_pooling_their_counts():
+    a, b = Score(truth=[]), Score(truth=[])
+    a.right, a.unknown, a.wrong, a.rate_errors = 90, 9, 1, [0.1]
+    b.right, b.unknown, b.wrong, b.rate_errors = 10, 1, 0, [0.2, 0.3]
+    m = merge([a, b])
+    assert (m.right, m.unknown, m.wrong) == (100, 10, 1)
+    assert m.summary()["state_share"] == {"right": round(100 / 111, 4),
+                                          "unknown": round(10 / 111, 4),
+                                          "wrong": round(1 / 111, 4)}
+    assert sorted(m.rate_errors) == [0.1, 0.2, 0.3]
+
+
+@pytest.mark.parametrize("seed", SEEDS[:10])
+def test_the_coupling_lies_between_the_paper_rooms_and_a_phones(seed):
+    assert 1.0 <= rs.draw(seed).scene.coupling_gain <= 8.0
