@@ -43,7 +43,7 @@ from .dsp.pulses import (
     count_dropped,
     too_few_pulses,
 )
-from .dsp.rangedoppler import range_doppler
+from .dsp.rangedoppler import band_limited, range_doppler
 from .dsp.stats import median
 from .dsp.tracking import Tracker, TrackerSettings, TrackState
 from .errors import InputError, ReferenceFileError
@@ -59,6 +59,9 @@ STILL_WINDOW_S = 1.5
 #: (bench_day --snr-db 50). At 10000 it is 40 dB lower.
 SLOW_FACTOR = 10000.0
 STILL_BAND = 0.2
+#: Share of the band (up to Nyquist) in which a reference's target range is looked for
+#: (the moving energy of the range-doppler map; dsp.pulses.EDGE_BAND's reason).
+TARGET_BAND = 0.7
 
 #: Version of the reference contents; bump when the table's meaning changes.
 REFERENCE_VERSION = 1
@@ -154,7 +157,11 @@ def _gate_for_reference(cfg: Config, full: AlignedPulses, prf: float) -> tuple[G
     if start_m is None:
         if target is None:
             v = full.valid
-            _, power = range_doppler(full.pulses[v], prf)
+            # below TARGET_BAND of Nyquist: the top of the band holds the aligner's
+            # interpolation error, which under clock drift turns with the sub-sample
+            # position and made a strong static echo 0.35 m away look like the moving
+            # target (a random scene at -17 ppm: target 0.315 m, the fan at 2.3 m)
+            _, power = range_doppler(band_limited(full.pulses[v], TARGET_BAND), prf)
             target = find_target_range(power, fs, c)
         start_m = max(target - cfg.analysis.gate_margin_m, 0.0)
     try:

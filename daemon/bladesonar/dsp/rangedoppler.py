@@ -9,6 +9,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from .analytic import edge_taper, fast_len
+
+
+def band_limited(pulses: np.ndarray, band: float) -> np.ndarray:
+    """Each pulse (row) with only the lower ``band`` of its band up to Nyquist, its ends
+    tapered first (a square cut leaks the top of the band into the rest)."""
+    x = np.asarray(pulses, dtype=np.float64)
+    L = x.shape[-1]
+    n = fast_len(L + 32)
+    spec = np.fft.rfft(x * edge_taper(L), n=n, axis=-1)
+    spec[..., max(int(band * (n // 2)), 1):] = 0.0
+    out: np.ndarray = np.fft.irfft(spec, n=n, axis=-1)[..., :L]
+    return out
+
 
 def range_doppler(pulses: np.ndarray, prf: float, *, window: str | None = "hann",
                   remove_mean: bool = True, pad: int = 1) -> tuple[np.ndarray, np.ndarray]:
