@@ -51,6 +51,22 @@ def test_echo_at_known_delay_lands_at_its_range():
     assert abs(a.edges[3] - (200.37 + 3 * PRI)) < 0.05
 
 
+@pytest.mark.parametrize("frac", [0.0, 0.5])
+def test_the_coupling_is_the_first_arrival_not_the_strongest_sample(frac):
+    """A coupling half a sample off the grid peaks at 0.64 of its height, and a wall
+    118 samples behind it may return more on the grid: the pulses are still cut at the
+    coupling (the first strong arrival), not at the echo."""
+    x = np.zeros(PRI * 12)
+    first = 898.0 + frac
+    for k in range(11):
+        add_pulse(x, first + k * PRI, 0.5)
+        add_pulse(x, first + k * PRI + 118.0 - frac, 0.45)    # on the grid
+    a = align(x, PRI, _gate())
+    ok = a.valid
+    k = a.index[ok]
+    assert np.max(np.abs(a.edges[ok] - (first + k * PRI))) < 0.01
+
+
 def test_chunked_alignment_equals_one_shot():
     x, _, _ = pulse_train(40, PRI, rate=0.07, drift_ppm=120, noise=1e-3, seed=1)
     g = _gate()
