@@ -188,3 +188,40 @@ def test_a_strong_wall_beside_the_sensor_is_not_taken_for_the_fan():
     assert abs(ref.meta["target_range_m"] - nearest) < 0.15, (ref.meta["target_range_m"],
                                                                nearest)
     assert ref.meta["rate_hz"] == pytest.approx(0.73, rel=1e-3)
+
+
+def test_a_far_fan_is_told_to_lengthen_the_pri_and_then_reads_right(scene):
+    """A fan 4.6 m away: its wall bounces come after one PRI (5.04 m) and fold into the
+    next pulse, ahead of the gate, and only the mirror-symmetric direct echo is left. The
+    reference says so and names the PRI that keeps them; with it, a probe turning the
+    other way reads `reversed` at the right rate."""
+    from bladesonar.sim.scene import Scene
+    d = 4.6
+    sc = Scene.from_mapping({
+        "room": {"vertices": [[0, 0], [7, 0], [7, 6], [0, 6]], "reflection": 0.6},
+        "sensor": [0.6, 0.6],
+        "fan": {"centre": [0.6 + 0.8 * d, 0.6 + 0.6 * d], "blades": 4, "blade_length_m": 0.6,
+                "hub_radius_m": 0.1, "start_angle_deg": 10}})
+    cfg = config.Config()
+    x, _ = simulate(sc, cfg, 20.0, schedule="ccw:0.45:60", seed=1, snr_db=12, drift_ppm=40,
+                    include_paths=False)
+    ref = build_reference(x, cfg, "ccw")
+    warn = [w for w in ref.meta["warnings"] if "fold" in w]
+    assert len(warn) == 1 and "waveform.pri_samples to" in warn[0]
+    pri = int(warn[0].split("waveform.pri_samples to ")[1].split()[0])
+    assert pri > cfg.waveform.pri_samples
+    # the paper room's fan (2.2 m) is near enough
+    x0, _ = simulate(scene, cfg, 20.0, schedule="ccw:0.45:60", seed=1, snr_db=12,
+                     drift_ppm=40, include_paths=False)
+    assert not any("fold" in w for w in build_reference(x0, cfg, "ccw").meta["warnings"])
+    cfg2 = config.replace(cfg, waveform={"pri_samples": pri})
+    x2, _ = simulate(sc, cfg2, 20.0, schedule="ccw:0.45:60", seed=1, snr_db=12, drift_ppm=40,
+                     include_paths=False)
+    ref2 = build_reference(x2, cfg2, "ccw")
+    assert not any("fold" in w for w in ref2.meta["warnings"])
+    y, _ = simulate(sc, cfg2, 15.0, schedule="cw:0.35:60", seed=2, snr_db=12, drift_ppm=40,
+                    include_paths=False)
+    out, _ = analyze(y, cfg2, ref2)
+    assert out["direction"] == "reversed" and out["rotation"] == "cw"
+    assert out["rate_hz"] == pytest.approx(0.35, rel=0.03)
+

@@ -7,7 +7,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bladesonar.dsp.decide import DecideSettings, decide, motion_statistic
+from bladesonar.dsp.decide import (
+    DecideSettings,
+    MotionMeter,
+    decide,
+    motion_statistic,
+    noise_threshold,
+)
 from bladesonar.dsp.fingerprint import envelope_features
 from synth_pulses import fan_pulse
 
@@ -124,3 +130,36 @@ def test_the_running_mean_of_the_meter_holds_over_hours():
         tail = np.vstack([tail, xs])[-window:]
     got, want = m.statistic(), motion_statistic(tail, 16)
     assert np.allclose(got, want, rtol=1e-9, atol=0.0), (got, want)
+
+
+@pytest.mark.parametrize("length", [100, 160, 400])
+def test_the_noise_threshold_is_what_noise_stays_under(length):
+    """The short meter's rest threshold for a gate: a long run of independent white
+    noise through the same features, read window by window by a streaming meter (not the
+    batched Monte Carlo that made the threshold), exceeds it about 2 % of the time (its
+    98th percentile); a shorter gate reads higher (fewer independent samples a pulse)."""
+    window, lags = 51, 25
+    thr = noise_threshold(length, window, lags, 0.2, 5)
+    rng = np.random.default_rng(length)
+    over = []
+    for _ in range(30):
+        f = envelope_features(rng.standard_normal((10 * window, length)), np.zeros(length),
+                              band=0.2, smooth=5)
+        for i in range(0, len(f) - window + 1, window):
+            m = MotionMeter(length, window, lags)
+            m.update_block(f[i:i + window])
+            over.append(m.statistic()[0] > thr)
+    assert 0.0 < np.mean(over) < 0.06
+    assert noise_threshold(100, window, lags, 0.2, 5) > noise_threshold(400, window, lags,
+                                                                        0.2, 5) > 1.0
+
+
+def test_a_short_gate_raises_the_rest_threshold_above_the_configured_one():
+    """decide(): a short meter under its calibrated threshold reads rest, though above the
+    configured motion_threshold; above it nothing is called stopped."""
+    s = DecideSettings(still_threshold=1.2)
+    args: dict[str, Any] = dict(rate=np.nan, rate_std=np.nan, locked=False, accepted=0.0,
+                                quality=0.0, motion=1.18, scene=5.0,
+                                ref_cycles_per_pulse=0.05, ref_rate_hz=0.45, settings=s)
+    assert decide(still=1.18, **args).direction == "stopped"
+    assert decide(still=1.21, **args).direction == "unknown"

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from bladesonar import config
-from bladesonar.analysis import build_reference
+from bladesonar.analysis import build_reference, folds_multipath, unfolding_pri
 from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer
 from bladesonar.runtime_report import TRANSITION_TARGETS_S
@@ -61,7 +61,8 @@ def random_day(hours: float, seed: int, block_pulses: int = 1
                           random_scene.SceneDraw]:
     """A random scene's day (sim/random_scene.py): the reference is learned in the same
     room, at the same SNR and drift, from 20 s of the fan at the reference speed, as the
-    daemon learns it."""
+    daemon learns it; when it warns that the fan's wall bounces fold past one PRI, it is
+    learned again with the PRI the warning names (what the user is told to do)."""
     cfg0 = config.Config()
     dr = random_scene.draw(seed, cfg0.prf_hz)
     cfg = config.replace(cfg0, scene={"blades": dr.blades})
@@ -71,6 +72,15 @@ def random_day(hours: float, seed: int, block_pulses: int = 1
                     seed=seed, snr_db=dr.snr_db, drift_ppm=dr.drift_ppm,
                     nuisances=dr.nuisances, include_paths=False)
     ref = build_reference(x, cfg, dr.ref_direction)
+    if folds_multipath(ref.gate, ref.meta["target_range_m"]):
+        # what the reference's warning tells the user to do: a longer PRI
+        cfg = config.replace(cfg, waveform={
+            "pri_samples": unfolding_pri(cfg, ref.meta["target_range_m"])})
+        x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
+                        schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60",
+                        seed=seed, snr_db=dr.snr_db, drift_ppm=dr.drift_ppm,
+                        nuisances=dr.nuisances, include_paths=False)
+        ref = build_reference(x, cfg, dr.ref_direction)
     sim = Simulator(dr.scene, cfg, sch, snr_db=dr.snr_db, seed=seed + 1,
                     drift_ppm=dr.drift_ppm, nuisances=dr.nuisances, include_paths=False)
     return cfg, sch, sim, LiveAnalyzer(cfg, ref, block_pulses=block_pulses), dr

@@ -28,7 +28,7 @@ from .config import Config
 from .dsp import aliasing, rangescale
 from .dsp import device as dev
 from .dsp import fingerprint as fp
-from .dsp.decide import DecideSettings, Decision, MotionMeter, decide
+from .dsp.decide import DecideSettings, Decision, MotionMeter, decide, noise_threshold
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
 from .dsp.period import estimate_period
 from .dsp.pulses import (
@@ -59,6 +59,9 @@ STILL_WINDOW_S = 1.5
 #: (bench_day --snr-db 50). At 10000 it is 40 dB lower.
 SLOW_FACTOR = 10000.0
 STILL_BAND = 0.2
+#: Added to the short meter's noise-alone threshold (decide.noise_threshold, its 98th
+#: percentile): room for what the device adds to white noise.
+NOISE_MARGIN = 0.03
 #: Share of the band (up to Nyquist) in which a reference's target range is looked for
 #: (the moving energy of the range-doppler map; dsp.pulses.EDGE_BAND's reason).
 TARGET_BAND = 0.7
@@ -170,6 +173,38 @@ def _gate_for_reference(cfg: Config, full: AlignedPulses, prf: float) -> tuple[G
         raise InputError(f"range gate: {exc}") from exc
 
 
+#: Least range the gate holds past the fan's direct echo, m: the wall bounces that tell
+#: the direction come 0.3-2 m later, and beyond one PRI they fold into the next pulse's
+#: window, ahead of the gate (a fan 4.6 m away, gate 0.64 m: false reversals every few
+#: seconds in three simulated trials).
+MIN_MULTIPATH_M = 1.2
+
+
+def folds_multipath(gate: Gate, target: float | None) -> bool:
+    """Whether the fan is so far that its wall bounces fold past one PRI."""
+    return target is not None and gate.stop_m - target < MIN_MULTIPATH_M
+
+
+def unfolding_pri(cfg: Config, target: float) -> int:
+    """The PRI (samples) that keeps echoes to 2 m past a fan at ``target`` m."""
+    c, fs = cfg.scene.speed_of_sound, cfg.audio.sample_rate
+    return int(math.ceil(2.0 * (target + 2.0) / c * fs))
+
+
+def _fold_warning(cfg: Config, gate: Gate, target: float | None) -> list[str]:
+    """A warning when the fan is so far that its multipath folds past one PRI."""
+    if target is None or not folds_multipath(gate, target):
+        return []
+    fs, K = cfg.audio.sample_rate, cfg.scene.blades
+    pri = unfolding_pri(cfg, target)
+    return [f"the fan's echo comes from {target:.2f} m and the range gate ends at "
+            f"{gate.stop_m:.2f} m (one PRI): the wall bounces that tell the direction fold "
+            f"into the next pulse, so directions may be unknown or wrong; set "
+            f"waveform.pri_samples to {pri} or more (echoes to {target + 2.0:.1f} m; the "
+            f"fastest fan followed becomes {fs / pri / (2 * K):.2f} Hz), or move the "
+            "device nearer the fan"]
+
+
 def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> Reference:
     """Make a reference from a recording of the fan turning at a steady rate.
 
@@ -209,6 +244,7 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
                              min_pulses=a.min_pulses,
                              dropped=count_dropped(full.status, ended=True))
     gate, target = _gate_for_reference(cfg, full, prf)
+    warnings.extend(_fold_warning(cfg, gate, target))
     pulses = full.pulses[:, gate.start:gate.stop]
     k = full.index[v]
     xv = pulses[v]
@@ -640,6 +676,13 @@ class PulseAnalyzer:
         self.still = MotionMeter(self.ref.mean_pulse.shape[0], short,
                                  max_lag=max(3, min(lags, short // 2)))
         self.slow = StaticRemover(self.static.alpha / SLOW_FACTOR, self.static.mean)
+        # the short meter calls rest against what noise alone reads in this gate (a short
+        # gate reads well over 1: decide.noise_threshold), never below the configured one
+        floor = self._decide_settings.motion_threshold
+        self._decide_settings = replace(self._decide_settings, still_threshold=max(
+            floor, noise_threshold(self.ref.mean_pulse.shape[0], self.still.window,
+                                   self.still.max_lag, STILL_BAND,
+                                   self.cfg.analysis.envelope_smooth) + NOISE_MARGIN))
         self._table_norms = (self.ref.table ** 2).sum(axis=1)
         self._table_floor = fp.distance_floor(self.ref.table)
         prf = self.cfg.prf_hz

@@ -20,11 +20,14 @@ be seen at all (only noise in the gate: neither stopped nor moving can be told).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+from .fingerprint import envelope_features
 
 
 class MotionMeter:
@@ -156,6 +159,46 @@ class MotionMeter:
         return var / noise, float(mean @ mean) / noise
 
 
+#: Quantile of the noise-alone statistic a meter's rest threshold sits on, and the trials
+#: it is measured with (:func:`noise_threshold`).
+NOISE_QUANTILE = 0.98
+NOISE_TRIALS = 64
+
+
+@functools.lru_cache(maxsize=32)
+def noise_threshold(length: int, window: int, max_lag: int, band: float, smooth: int,
+                    quantile: float = NOISE_QUANTILE, trials: int = NOISE_TRIALS) -> float:
+    """The motion statistic that white noise alone stays under with probability
+    ``quantile``, through the same envelope features (``band``, ``smooth``) on a gate of
+    ``length`` samples, for a meter of ``window`` pulses and lags up to ``max_lag``.
+
+    Why: ``min_m D_m`` is the least of ``max_lag`` noisy estimates, so even noise reads
+    above 1, and the more so the fewer independent samples a pulse holds: a gate of 100
+    samples (a fan 4.7 m away) reads 1.09 at the median and 1.20 at the 99th
+    percentile, one of 800 samples 1.013 and 1.04. A fixed threshold of 1.15 therefore
+    called a far fan's rest only now and then. Monte Carlo with a fixed seed (the same
+    number every time), in batches of 16 trials (0.1-0.4 s here); cached per shape."""
+    rng = np.random.default_rng(20261126)
+    n, M = int(window), int(max_lag)
+    out = np.empty(trials)
+    lags = np.arange(1, M + 1)
+    for a in range(0, trials, 16):
+        b = min(a + 16, trials)
+        f = envelope_features(rng.standard_normal(((b - a) * n, int(length))),
+                              np.zeros(int(length)), band=band, smooth=smooth)
+        f = f.reshape(b - a, n, -1)
+        g = f @ np.swapaxes(f, 1, 2)                     # (t, n, n) Gram matrices
+        e = np.diagonal(g, axis1=1, axis2=2)             # (t, n)
+        mean = f.mean(axis=1)
+        var = e.mean(axis=1) - (mean * mean).sum(axis=1)
+        dm = np.empty((b - a, M))
+        for j, m in enumerate(lags):
+            cross = np.diagonal(g, offset=-m, axis1=1, axis2=2)   # x_i . x_{i-m}
+            dm[:, j] = 0.5 * (e[:, m:] + e[:, :-m] - 2.0 * cross).mean(axis=1)
+        out[a:b] = var / dm.min(axis=1)
+    return float(np.quantile(out, quantile))
+
+
 def motion_statistic(pulses: np.ndarray, max_lag: int = 16) -> tuple[float, float]:
     """One-shot form of :class:`MotionMeter` over all rows of ``pulses`` (n, L)."""
     m = MotionMeter(pulses.shape[1], len(pulses), max_lag)
@@ -169,6 +212,9 @@ class DecideSettings:
     """Thresholds of :func:`decide` (config ``tracking``)."""
 
     motion_threshold: float = 1.15
+    #: the short meter's rest threshold (PulseAnalyzer: motion_threshold, or the noise-alone
+    #: statistic of its gate if that is higher: :func:`noise_threshold`); NaN: the same
+    still_threshold: float = math.nan
     #: static echo energy (the running mean pulse) over the noise energy of one pulse
     #: below which the gate holds nothing but noise. Noise alone gives about the mean's
     #: noise share, 1 / (effective pulses averaged), 0.005-0.01 with the 3 s static
@@ -286,8 +332,9 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     warnings: list[str] = []
     # nothing but noise: a weak static echo and no meter that saw change (a meter without
     # a verdict yet saw none either: early in a run the long one has too few pulses)
+    still_thr = s.still_threshold if math.isfinite(s.still_threshold) else s.motion_threshold
     if scene < s.scene_threshold and not (motion >= s.motion_threshold) \
-            and not (still >= s.motion_threshold):
+            and not (still >= still_thr):
         return Decision("unknown", None, None, None, None, 0.0,
                         "nothing but noise in the range gate", warnings)
     turning = locked and math.isfinite(rate) and ref_cycles_per_pulse > 0
@@ -312,14 +359,14 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     # its echoes for the meter to see.
     moving = turning and conf >= s.min_confidence and rate_hz >= 2.0 * s.rate_floor_hz \
         and abs(rate) >= 4.0 * rate_std and not at_rest
-    m = still if math.isfinite(still) else motion
-    quiet = math.isfinite(m) and m < s.motion_threshold
+    m, thr = (still, still_thr) if math.isfinite(still) else (motion, s.motion_threshold)
+    quiet = math.isfinite(m) and m < thr
     if quiet and not moving:
-        c = min(max((s.motion_threshold - m) / (s.motion_threshold - 1.0), 0.0), 1.0)
+        c = min(max((thr - m) / (thr - 1.0), 0.0), 1.0)
         return Decision("stopped", None, 0.0, 0.0, 0.0, c,
                         f"no change between pulses beyond noise (motion {m:.3f} < "
-                        f"{s.motion_threshold:g})", warnings, seen_still=seen_still)
-    limit = SEEN_STILL_FACTOR * s.motion_threshold
+                        f"{thr:.3g})", warnings, seen_still=seen_still)
+    limit = SEEN_STILL_FACTOR * still_thr
     if seen_still and math.isfinite(still) and still < limit and not moving:
         c = min(max((limit - still) / (limit - 1.0), 0.0), 1.0)
         return Decision("stopped", None, 0.0, 0.0, 0.0, c,
