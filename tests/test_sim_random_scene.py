@@ -60,7 +60,10 @@ def test_every_scene_lies_inside_the_sweep_envelope(seed):
     assert lo <= dr.ref_rate_hz <= hi
     prf = config.Config().prf_hz
     # the reference sees many blade angles (what `reference` advises)
-    assert aliasing.folded_angles(dr.ref_rate_hz * dr.blades / prf, int(20 * prf)) is None
+    c = dr.ref_rate_hz * dr.blades / prf
+    assert aliasing.folded_angles(c, int(20 * prf)) is None
+    assert all(abs(c - p / q) * int(20 * prf) >= 2.0 / q
+               for q in range(1, 13) for p in range(1, q))
     # under the aliasing limit PRF / (2 K) and the reference's phase step
     assert hi < prf / (2 * dr.blades)
     assert dr.ref_rate_hz * dr.blades / prf <= config.Config().analysis.max_phase_per_pulse
@@ -102,3 +105,24 @@ def test_scores_merge_by_pooling_their_counts():
 @pytest.mark.parametrize("seed", SEEDS[:10])
 def test_the_coupling_lies_between_the_paper_rooms_and_a_phones(seed):
     assert 1.0 <= rs.draw(seed).scene.coupling_gain <= 8.0
+
+
+def test_a_fan_set_below_the_timed_speed_gives_optional_events():
+    """A start to 0.12 Hz (over twice the rate floor, under the 0.15 Hz the truth times
+    events at), its stop, and a reversal to 0.12 Hz are optional: detected, they are
+    neither false nor timed; missed, not missed. A start that goes on to 0.3 Hz is timed
+    where it passes 0.15 Hz, as without low_hz."""
+    from bladesonar.sim.score import score_events, truth_events
+    sch = parse("stop:0:5,ccw:0.12:20~2,stop:0:10~2,ccw:0.3:20~4,cw:0.12:20~6")
+    old = truth_events(sch, 70.0)
+    ev = truth_events(sch, 70.0, low_hz=0.1)
+    assert [(e.kind, e.optional) for e in ev] == [
+        ("started", True), ("stopped", True), ("started", False), ("reversed", True)]
+    timed = [e for e in ev if not e.optional]
+    assert [(e.kind, e.t_s) for e in timed] == [(e.kind, e.t_s) for e in old]
+    assert timed[0].t_s == pytest.approx(35.0 + 4.0 * 0.15 / 0.3, abs=0.01)
+    detected = [("started", 6.8), ("stopped", 28.0), ("started", 37.2), ("reversed", 61.0)]
+    sc = score_events(ev, detected)
+    assert (len(sc.hits), len(sc.false), len(sc.missed)) == (1, 0, 0)
+    sc = score_events(ev, [("started", 37.2)])
+    assert (len(sc.hits), len(sc.false), len(sc.missed)) == (1, 0, 0)

@@ -120,7 +120,10 @@ def run_day(cfg: config.Config, sch: Schedule, sim: Simulator, live: LiveAnalyze
     events = [(kind, true_time(t_ev, drift_ppm)) for kind, t_ev in events]
     # a truth event within the longest latency allowed (a stop's) of the end counts only
     # if it was found: it is not yet due
-    score = score_events(truth_events(sch, seconds), events,
+    # a fan set below 0.15 Hz (MOVING_HZ) but at twice the rate floor or more changes
+    # state without an event the truth can time: such events are optional
+    low = 2.0 * cfg.tracking.rate_floor_hz
+    score = score_events(truth_events(sch, seconds, low_hz=low), events,
                          due_by=seconds - max(TRANSITION_TARGETS_S.values()))
     times = true_time(np.array([s[0] for s in states]), drift_ppm)
     truth = sch.rate_at(times)

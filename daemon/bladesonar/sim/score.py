@@ -14,7 +14,9 @@ A run's events are matched to these in order, kind by kind: a detected event wit
 ``[t - early_s, t + late_s]`` of a truth event of its kind is a hit (its latency is
 ``t_detected - t``), and a start or a reversal from the moment it is true (the fan left
 rest, the rate passed zero) if that is earlier; any other detected event is false, any
-truth event without one is missed. Published states are scored pulse by pulse: right,
+truth event without one is missed. Optional truth events (a change to a speed under
+``moving_hz``: ``truth_events(low_hz=...)``) take a detection if one comes, and are
+neither hits nor misses. Published states are scored pulse by pulse: right,
 unknown or wrong, where stretches of transition (0 < |rate| < ``moving_hz``) count any
 known answer that does not claim the wrong direction as right. All times here are the
 schedule's: a run's stream times are converted with :func:`true_time` first.
@@ -57,11 +59,22 @@ class TruthEvent:
     #: from when the event is true (a start: the fan leaves rest; a reversal: the rate
     #: passes zero); None: only the matching window's early tolerance
     since_s: float | None = None
+    #: a change to a speed between ``low_hz`` and ``moving_hz`` (truth_events): a detection
+    #: of it is neither false nor timed, and missing it is not a miss
+    optional: bool = False
 
 
 def truth_events(schedule: Schedule, seconds: float, *, moving_hz: float = MOVING_HZ,
-                 min_rest_s: float = 2.0, step_s: float = 0.005) -> list[TruthEvent]:
-    """The events an ideal observer reports for ``schedule`` over ``[0, seconds]``."""
+                 low_hz: float | None = None, min_rest_s: float = 2.0,
+                 step_s: float = 0.005) -> list[TruthEvent]:
+    """The events an ideal observer reports for ``schedule`` over ``[0, seconds]``.
+
+    With ``low_hz`` (below ``moving_hz``: the product claims a new direction from twice
+    its rate floor) the fan's direction is known from ``low_hz`` on: a start or a
+    reversal to a speed that stays under ``moving_hz`` (a fan set to 0.12 Hz), and the
+    stop that ends such a turn, are optional events; one that goes on to ``moving_hz`` is
+    timed there as before."""
+    low = moving_hz if low_hz is None else min(float(low_hz), moving_hz)
     t = np.arange(0.0, seconds, step_s)
     r = schedule.rate_at(t)
     out: list[TruthEvent] = []
@@ -69,12 +82,17 @@ def truth_events(schedule: Schedule, seconds: float, *, moving_hz: float = MOVIN
     rest_from: float | None = None
     moved = 0.0                       # the fan last left rest or passed zero (s)
     prev = 0.0
+    pending: TruthEvent | None = None  # a change past low_hz, not yet at moving_hz
+    reached = False                   # the turn since the last change reached moving_hz
     for ti, ri in zip(t, r, strict=True):
         if ri == 0.0:
+            if pending is not None:
+                out.append(pending)
+                pending = None
             if rest_from is None:
                 rest_from = float(ti)
             if known not in (None, 0) and ti - rest_from >= min_rest_s:
-                out.append(TruthEvent("stopped", rest_from, 0))
+                out.append(TruthEvent("stopped", rest_from, 0, optional=not reached))
                 known = 0
             elif known is None and ti - rest_from >= min_rest_s:
                 known = 0
@@ -82,15 +100,26 @@ def truth_events(schedule: Schedule, seconds: float, *, moving_hz: float = MOVIN
             continue
         if rest_from is not None or prev * ri < 0:
             moved = float(ti)
+            if pending is not None and prev * ri < 0:
+                out.append(pending)
+                pending = None
         rest_from = None
         prev = float(ri)
-        if abs(ri) >= moving_hz:
+        if abs(ri) >= low:
             s = 1 if ri > 0 else -1
-            if known == 0:
-                out.append(TruthEvent("started", float(ti), s, since_s=moved))
-            elif known is not None and known != s:
-                out.append(TruthEvent("reversed", float(ti), s, since_s=moved))
+            if known is not None and known != s:
+                pending = TruthEvent("started" if known == 0 else "reversed", float(ti), s,
+                                     since_s=moved, optional=True)
+                reached = False
             known = s
+        if abs(ri) >= moving_hz:
+            reached = True
+            if pending is not None:
+                out.append(TruthEvent(pending.kind, float(ti), pending.sign,
+                                      since_s=pending.since_s))
+                pending = None
+    if pending is not None:
+        out.append(pending)
     return out
 
 
@@ -183,20 +212,22 @@ def score_events(truth: list[TruthEvent], detected: Iterable[tuple[str, float]],
     from, and a start called on the way is right), until ``late_s`` after. A truth event
     after ``due_by`` (the end of a run less the longest latency allowed) counts only if
     it was found: a rest that began 2.2 s before the end was not yet due."""
-    sc = Score(truth=list(truth))
+    sc = Score(truth=[ev for ev in truth if not ev.optional])
     pending = sorted(detected, key=lambda e: e[1])
     used = [False] * len(pending)
-    for ev in sc.truth:
+    for ev in sorted(truth, key=lambda e: e.t_s):
         first = ev.t_s - early_s
         if ev.since_s is not None:
             first = min(first, ev.since_s)
         for i, (kind, t) in enumerate(pending):
             if not used[i] and kind == ev.kind and first <= t <= ev.t_s + late_s:
                 used[i] = True
-                sc.hits.append((ev, t - ev.t_s))
+                if not ev.optional:
+                    sc.hits.append((ev, t - ev.t_s))
                 break
         else:
-            sc.missed.append(ev)
+            if not ev.optional:
+                sc.missed.append(ev)
     if due_by is not None:
         found = {id(ev) for ev, _ in sc.hits}
         sc.truth = [ev for ev in sc.truth if ev.t_s <= due_by or id(ev) in found]
