@@ -24,6 +24,19 @@ def band_limited(pulses: np.ndarray, band: float) -> np.ndarray:
     return out
 
 
+def without_shift_and_gain(pulses: np.ndarray) -> np.ndarray:
+    """The pulses less what a sub-sample shift or a gain change of their mean explains:
+    each row minus its least-squares fit by the mean pulse and the mean's derivative
+    along range (a pulse cut a few hundredths of a sample off, or heard a little louder,
+    leaves exactly those on every static echo; the fan's echoes, shaped otherwise, stay)."""
+    x = np.asarray(pulses, dtype=np.float64)
+    mean = x.mean(axis=0)
+    basis = np.stack([mean, np.gradient(mean)], axis=1)          # (L, 2)
+    coef, *_ = np.linalg.lstsq(basis, (x - mean).T, rcond=None)    # (2, n)
+    out: np.ndarray = x - (basis @ coef).T
+    return out
+
+
 def range_doppler(pulses: np.ndarray, prf: float, *, window: str | None = "hann",
                   remove_mean: bool = True, pad: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Doppler spectrum of every delay sample.
