@@ -85,19 +85,24 @@ class Tail:
             self._parts.append((tf, s_fan * gf * c[:, h] * np.cos(psi[:, h])))
             self._parts.append((tf, -s_fan * gf * c[:, h] * np.sin(psi[:, h])))
         self._shape = shape
-        self._cache: dict[int, np.ndarray] = {}
+        # every sub-sample position's waveforms in one array, filled as they are first
+        # needed (float32: the tail is tens of dB under the echoes, and half the memory
+        # traffic of the four positions read per pulse)
+        self._wave = np.zeros((FRACTIONS + 3, 1 + 2 * HARMONICS, self.length), np.float32)
+        self._filled = np.zeros(FRACTIONS + 3, bool)
 
     def waveforms(self, frac_bin: int) -> np.ndarray:
         """(1 + 2 HARMONICS, length) waveforms starting at ``start - HALF_TAPS +
         frac_bin / FRACTIONS`` samples after the edge (``frac_bin`` -1..FRACTIONS + 1)."""
-        got = self._cache.get(frac_bin)
-        if got is None:
+        i = frac_bin + 1
+        if not self._filled[i]:
             f = frac_bin / FRACTIONS
-            got = np.stack([waveform.render(*waveform.shaped_taps(t + f, g, self._shape),
-                                            0, self.length) for t, g in self._parts]
-                           )
-            self._cache[frac_bin] = got
-        return got
+            self._wave[i] = np.stack([waveform.render(*waveform.shaped_taps(t + f, g,
+                                                                            self._shape),
+                                                      0, self.length)
+                                      for t, g in self._parts])
+            self._filled[i] = True
+        return self._wave[i]
 
     def add(self, out: np.ndarray, n0: int, edges: np.ndarray, phases: np.ndarray) -> None:
         """Add the tails of pulses with coupling edges ``edges`` (capture samples) and blade
@@ -120,9 +125,10 @@ class Tail:
             coef = [1.0]
             for h in range(1, HARMONICS + 1):
                 coef += [math.cos(2 * math.pi * h * ph), math.sin(2 * math.pi * h * ph)]
-            c = np.asarray(coef, dtype=np.float64)
             lag = (-u * (u - 1.0) * (u - 2.0) / 6.0, (u + 1.0) * (u - 1.0) * (u - 2.0) / 2.0,
                    -(u + 1.0) * u * (u - 2.0) / 2.0, (u + 1.0) * u * (u - 1.0) / 6.0)
-            for j, wj in enumerate(lag):
-                if wj != 0.0:
-                    out[lo:hi] += wj * (c @ self.waveforms(fb - 1 + j)[:, lo - a:hi - a])
+            c = np.asarray(coef, dtype=np.float32)
+            acc = (lag[0] * c) @ self.waveforms(fb - 1)[:, lo - a:hi - a]
+            for j in range(1, 4):
+                acc += (lag[j] * c) @ self.waveforms(fb - 1 + j)[:, lo - a:hi - a]
+            out[lo:hi] += acc
