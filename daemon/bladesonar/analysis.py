@@ -634,7 +634,7 @@ class PulseAnalyzer:
     #: track it belongs to (a new lock or a move to another line starts it afresh)
     _restart_at: set[int] = field(default_factory=set)
     _carry_restart: set[int] = field(default_factory=set)
-    _unwrapped: deque[tuple[int, float, float]] = field(default_factory=deque)
+    _unwrapped: deque[tuple[int, float]] = field(default_factory=deque)
     _track_id: tuple[Any, ...] = ()
     #: range scale c_now / c_ref (dsp/rangescale.py): its estimate, the correlation it
     #: rests on, and the rescaler of features when it is used
@@ -873,17 +873,15 @@ class PulseAnalyzer:
             if not st.locked:
                 return
         h = self._unwrapped
-        P = tr.P
-        sd = math.sqrt(max(float(P[0, 0]), 0.0)) if P is not None else math.nan
         if h:
-            k0, u0, _ = h[-1]
+            k0, u0 = h[-1]
             step = float(st.rate) * (k - k0) if math.isfinite(st.rate) else 0.0
             d = st.phase - (u0 % 1.0) - step
-            h.append((k, u0 + step + d - round(d), sd))
+            h.append((k, u0 + step + d - round(d)))
             while h and h[0][0] <= k - self.window:
                 h.popleft()
         else:
-            h.append((k, float(st.phase), sd))
+            h.append((k, float(st.phase)))
 
     def window_rate(self) -> float | None:
         """The mean phase rate over the last window (cycles per pulse): the unwrapped
@@ -893,22 +891,15 @@ class PulseAnalyzer:
         h = self._unwrapped
         if len(h) < 4 or h[-1][0] - h[0][0] < self.window // 2:
             return None
-        (k0, u0, s0), (k1, u1, s1) = h[0], h[-1]
-        km, um, sm = h[len(h) // 2]
+        (k0, u0), (k1, u1) = h[0], h[-1]
+        km, um = h[len(h) // 2]
         if not (k0 < km < k1):
             return None
         mean = (u1 - u0) / (k1 - k0)
         # a trend is no wobble: halves whose rates differ by more than TREND_SHARE of the
-        # mean, and by more than three standard deviations of that difference (the
-        # track's phase uncertainty at the three points), are a ramp, where the latest
-        # rate is the answer and the mean lags it. Without the second test the halves of
-        # a steady fan seen only at a few angles per blade period (a 5-blade fan, its
-        # matches clear for a tenth of each period) differed by their noise alone, and
-        # the mean, 1 % off, gave way to rates 4-14 % off (random tuning scenes).
+        # mean are a ramp, where the latest rate is the answer and the mean lags it
         r1, r2 = (um - u0) / (km - k0), (u1 - um) / (k1 - km)
-        sd = math.sqrt((s0 * s0 + sm * sm) / (km - k0) ** 2
-                       + (sm * sm + s1 * s1) / (k1 - km) ** 2)
-        if abs(r2 - r1) > max(TREND_SHARE * abs(mean), 3.0 * sd if math.isfinite(sd) else 0.0):
+        if abs(r2 - r1) > TREND_SHARE * abs(mean):
             return None
         return mean
 
