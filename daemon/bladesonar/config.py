@@ -126,10 +126,14 @@ class TrackingSettings:
                                "a drop-out)", lo=1, hi=10000, unit="pulses")
     init_pulses: int = opt(24, "matches the circular-regression start uses", lo=4,
                            hi=10000, unit="pulses")
-    min_coherence: float = opt(0.6, "coherence of those matches needed to lock (noise gives "
-                               "about 1/sqrt(init_pulses))", lo=0.0, hi=1.0)
+    min_coherence: float = opt(0.6, "coherence of those matches needed to lock (random "
+                               "phases with the matches' quality weights reach about this "
+                               "at the median: docs/dynamics.md)", lo=0.0, hi=1.0)
     motion_threshold: float = opt(1.15, "pulse variance over the most-alike-lag difference "
-                                  "below which the target is called stopped", lo=1.0, hi=10.0)
+                                  "below which the target is called stopped (the short "
+                                  "meter uses what noise alone reads in the range gate "
+                                  "instead when that is higher: a short gate)",
+                                  lo=1.0, hi=10.0)
     min_confidence: float = opt(0.5, "below this confidence the direction is reported as "
                                 "unknown", lo=0.0, hi=1.0)
     rate_floor_hz: float = opt(0.05, "no direction is claimed for a fan turning slower than "
