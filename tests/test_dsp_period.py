@@ -104,3 +104,31 @@ def test_commensurate_reference_is_right_or_refused_naming_the_fraction(tmp_path
     else:
         assert r.returncode == 2 and "Traceback" not in r.stderr
         assert "/17 cycle per pulse" in r.stderr and "different fan speed" in r.stderr
+
+
+def test_a_reference_at_2_33_blade_period_per_pulse_is_not_folded_at_13_33():
+    """A 4-blade fan at 0.5151 Hz is 2/33 blade period per pulse within 1e-5: twenty
+    seconds show the same 33 angles again and again, every m/33 folds them as tightly, and
+    the search took 13/33 (3.35 Hz, a fold whose angles were in no order). Among folds in
+    no order the order of the angles decides (random tuning scene 45)."""
+    from bladesonar import config
+    from bladesonar.analysis import build_reference
+    from bladesonar.sim.nuisances import Nuisances
+    from bladesonar.sim.render import simulate
+    from bladesonar.sim.scene import Scene
+    w, d = 6.437514676614429, 3.807731469506611
+    sc = Scene.from_mapping({
+        "room": {"vertices": [[0, 0], [w, 0], [w, d], [0, d]],
+                 "reflection": [0.527, 0.862, 0.422, 0.437]},
+        "sensor": [6.04052082014192, 1.8165420589064094], "coupling_gain": 1.0163684436891622,
+        "fan": {"centre": [4.000505761134571, 1.3770283454499717], "blades": 4,
+                "blade_length_m": 0.5875387960157299, "hub_radius_m": 0.07672756734798229,
+                "start_angle_deg": float(np.degrees(3.7450468830768413))}})
+    cfg = config.Config()
+    nz = Nuisances(speaker_highpass_hz=391.0, speaker_resonance_hz=1663.0, rt60_s=0.2,
+                   reverb_db=-11.4)
+    x, _ = simulate(sc, cfg, 20.0, schedule="cw:0.5151:60", seed=45,
+                    snr_db=24.74495076394045, drift_ppm=132.46336829143542, nuisances=nz,
+                    include_paths=False)
+    ref = build_reference(x, cfg, "cw")
+    assert ref.meta["rate_hz"] == pytest.approx(0.5151, rel=1e-3)
