@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from bladesonar import config
-from bladesonar.analysis import build_reference, folds_multipath, unfolding_pri
+from bladesonar.analysis import Reference, build_reference, folds_multipath, unfolding_pri
 from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer
 from bladesonar.runtime_report import TRANSITION_TARGETS_S
@@ -61,26 +61,32 @@ def random_day(hours: float, seed: int, block_pulses: int = 1
                           random_scene.SceneDraw]:
     """A random scene's day (sim/random_scene.py): the reference is learned in the same
     room, at the same SNR and drift, from 20 s of the fan at the reference speed, as the
-    daemon learns it; when it warns that the fan's wall bounces fold past one PRI, it is
-    learned again with the PRI the warning names (what the user is told to do)."""
+    daemon learns it; when it warns that the fan's wall bounces fold past one PRI, or that
+    echoes clip, it is learned again with the PRI the warning names, or at half the
+    playback volume (what the user is told to do)."""
     cfg0 = config.Config()
     dr = random_scene.draw(seed, cfg0.prf_hz)
     cfg = config.replace(cfg0, scene={"blades": dr.blades})
     sch = parse(dr.schedule(hours * 3600.0))
-    x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
-                    schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60",
-                    seed=seed, snr_db=dr.snr_db, drift_ppm=dr.drift_ppm,
-                    nuisances=dr.nuisances, include_paths=False)
-    ref = build_reference(x, cfg, dr.ref_direction)
-    if folds_multipath(ref.gate, ref.meta["target_range_m"]):
-        # what the reference's warning tells the user to do: a longer PRI
-        cfg = config.replace(cfg, waveform={
-            "pri_samples": unfolding_pri(cfg, ref.meta["target_range_m"])})
+    def learn(cfg: config.Config) -> Reference:
         x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
                         schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60",
                         seed=seed, snr_db=dr.snr_db, drift_ppm=dr.drift_ppm,
                         nuisances=dr.nuisances, include_paths=False)
-        ref = build_reference(x, cfg, dr.ref_direction)
+        return build_reference(x, cfg, dr.ref_direction)
+
+    ref = learn(cfg)
+    # what the reference's warnings tell the user to do, as a user would: a longer PRI
+    # for a far fan, a lower playback volume for echoes that clip (a wall 0.25 m away)
+    for _ in range(3):
+        if folds_multipath(ref.gate, ref.meta["target_range_m"]):
+            cfg = config.replace(cfg, waveform={
+                "pri_samples": unfolding_pri(cfg, ref.meta["target_range_m"])})
+        elif any("lower the playback volume" in w for w in ref.meta["warnings"]):
+            cfg = config.replace(cfg, waveform={"amplitude": cfg.waveform.amplitude / 2})
+        else:
+            break
+        ref = learn(cfg)
     sim = Simulator(dr.scene, cfg, sch, snr_db=dr.snr_db, seed=seed + 1,
                     drift_ppm=dr.drift_ppm, nuisances=dr.nuisances, include_paths=False)
     return cfg, sch, sim, LiveAnalyzer(cfg, ref, block_pulses=block_pulses), dr
