@@ -126,3 +126,120 @@ def test_a_trusted_rate_keeps_its_answer_and_the_note_becomes_a_warning():
     d = decide(**common, alias_gap=0.4, alias_note="moved off an alias")
     assert (d.direction, d.rotation, d.confidence) == ("reversed", "cw", plain.confidence)
     assert d.warnings == ["moved off an alias"] and not plain.warnings
+
+
+# ---- the mirror check: a track's path against its mirror image (flat fans' direct echo
+# is the same turned either way; only an asymmetric pattern tells the directions apart)
+
+def _symmetric_table() -> np.ndarray:
+    """A pattern that is its own mirror image about phase 0.5 (``T(p) = T(1 - p)``): what
+    the direct echo of a flat fan gives with no wall echo to break the symmetry."""
+    ph = np.arange(B) / B
+    pos = 8.0 + 96.0 * np.minimum(ph, 1.0 - ph)
+    x = np.arange(L)
+    t = np.exp(-0.5 * ((x[None, :] - pos[:, None]) / 2.0) ** 2)
+    return t - t.mean(axis=1, keepdims=True)
+
+
+def _path(rate: float, accel: float, n: int = 170, phase0: float = 0.3) -> np.ndarray:
+    k = np.arange(n)
+    return phase0 + rate * k + 0.5 * accel * k * k
+
+
+@pytest.mark.parametrize("accel", [0.0, 2e-4])
+def test_the_mirror_of_a_path_fits_an_asymmetric_pattern_worse(accel):
+    """Pulses along a path (a steady rate, and a ramp): the true path beats its mirror by
+    far more than MIRROR_Z on every noise draw, and a track on the mirror path sees the
+    same evidence with the opposite sign (its mirror is the true path)."""
+    from bladesonar.dsp.fingerprint import table_lookup
+    table = _table(visible=None)
+    fine = aliasing.fine_table(table)
+    p = _path(0.03, accel)
+    for seed in range(10):
+        f = table_lookup(table, p)
+        f = f + 0.05 * np.random.default_rng(seed).standard_normal(f.shape)
+        d = aliasing.distances(f, fine)
+        z, sweep = aliasing.mirror_evidence(d, p % 1.0, fine)
+        assert z > aliasing.MIRROR_Z and sweep == pytest.approx(
+            abs(p[-1] - p[0]), rel=1e-6), (seed, z)
+        z_m, _ = aliasing.mirror_evidence(d, (0.7 - p) % 1.0, fine)
+        assert z_m < -aliasing.MIRROR_Z, (seed, z_m)
+
+
+def test_a_symmetric_pattern_leaves_the_direction_to_chance():
+    """On a pattern that is its own mirror image the evidence is a t statistic of pure
+    noise: beyond MIRROR_Z (a confident direction) in few draws of 40, either sign."""
+    from bladesonar.dsp.fingerprint import table_lookup
+    table = _symmetric_table()
+    fine = aliasing.fine_table(table)
+    p = _path(0.03, 0.0)
+    z_list = []
+    for seed in range(40):
+        f = table_lookup(table, p)
+        f = f + 0.05 * np.random.default_rng(seed).standard_normal(f.shape)
+        z_list.append(aliasing.mirror_evidence(aliasing.distances(f, fine), p % 1.0, fine)[0])
+    zs = np.array(z_list)
+    assert np.mean(np.abs(zs) >= aliasing.MIRROR_Z) <= 0.1, zs
+    assert np.mean(np.abs(zs) < aliasing.MIRROR_DOUBT_Z) >= 0.8, zs
+
+
+def _watch_on(table: np.ndarray, rate: float, *, mirror: bool, seed: int = 0,
+              n: int = 340, watch: aliasing.AliasWatch | None = None, k0: int = 0
+              ) -> tuple[aliasing.AliasWatch, Any]:
+    """The alias watch as the analysis runs it, beside a track that follows the line of
+    pulses at ``rate`` or (``mirror``) its mirror image, as a track that locked on the
+    mirror does. The track is scripted (a real Tracker whose line is set, not fitted):
+    what is under test is the watch's verdict on a given line."""
+    from bladesonar.dsp.fingerprint import table_lookup
+    from bladesonar.dsp.tracking import Tracker, TrackerSettings
+    fine = aliasing.fine_table(table)
+    if watch is None:
+        watch = aliasing.AliasWatch(fine, 170, 0.03, min_rate=0.003)
+    tr = Tracker(TrackerSettings(max_rate=0.45))
+    k = np.arange(n)
+    f = table_lookup(table, 0.3 + rate * k)
+    f = f + 0.05 * np.random.default_rng(seed).standard_normal(f.shape)
+    dist = aliasing.distances(f, fine)
+    sign = -1.0 if mirror else 1.0
+    tr.start_k = tr.locked_k = k0
+    tr.P = np.diag([1e-4, 1e-8])
+    for i in range(n):
+        if tr.relocks == 0:
+            tr.x = np.array([(sign * (0.3 + rate * i) + (0.2 if mirror else 0.0)) % 1.0,
+                             sign * rate])
+        else:                                   # moved by the watch: it runs on the line
+            assert tr.x is not None and tr.last_k is not None
+            tr.x = np.array([(tr.x[0] + tr.x[1] * (k0 + i - tr.last_k)) % 1.0, tr.x[1]])
+        tr.last_k = k0 + i
+        watch.push(k0 + i, dist[i], float(tr.x[0]))
+        watch.check(tr, accel=0.0, moving=lambda: True)
+    return watch, tr
+
+
+def test_a_track_on_the_mirror_line_is_moved_back():
+    watch, tr = _watch_on(_table(visible=None), 0.03, mirror=True)
+    assert watch.mirror_moves == 1 and tr.x is not None
+    assert float(tr.x[1]) == pytest.approx(0.03, rel=0.05)
+    assert watch.mirror_note == ""
+
+
+def test_a_symmetric_room_puts_the_direction_in_doubt_and_new_tracks_wait():
+    """No wall echo to tell the directions apart: after half a window the track's
+    direction is in doubt (the answer is then unknown, with the reason), and a new track
+    in that room starts 'to be confirmed' until its own check clears it."""
+    doubted = 0
+    for seed in range(6):
+        watch, _ = _watch_on(_symmetric_table(), 0.03, mirror=False, seed=seed)
+        doubted += bool(watch.mirror_note) and watch.mirror_doubt >= 0.1
+    assert doubted >= 5
+    d = decide(rate=0.03, rate_std=1e-4, locked=True, accepted=1.0, quality=0.5,
+               motion=3.0, scene=100.0, ref_cycles_per_pulse=0.03, ref_rate_hz=0.5,
+               ref_direction="ccw", alias_gap=0.0, alias_note=watch.mirror_note)
+    assert d.direction == "unknown" and d.reason.startswith("direction in doubt")
+    # the same watch, a new track in an asymmetric pattern: held at first, then cleared
+    watch, _ = _watch_on(_table(visible=None), 0.03, mirror=False, n=8, watch=watch,
+                         k0=10 ** 4)
+    assert watch.mirror_note.startswith("direction to be confirmed")
+    watch, _ = _watch_on(_table(visible=None), 0.03, mirror=False, n=60, watch=watch,
+                         k0=2 * 10 ** 4)
+    assert watch.mirror_note == ""

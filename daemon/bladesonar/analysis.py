@@ -104,7 +104,8 @@ class Reference:
         m = self.meta
         keys = ("blade_rate_hz", "rate_hz", "rpm", "periods_folded", "quality", "gate_m",
                 "pulses", "dropped_pulses", "direction", "phase_bins", "cycles_per_pulse",
-                "target_range_m", "line_snr", "features", "device", "warnings")
+                "target_range_m", "line_snr", "direction_contrast", "features", "device",
+                "warnings")
         return {k: m[k] for k in keys if k in m}
 
 
@@ -276,6 +277,15 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     phases = fp.fold_phases(k, r)
     table, weight = fp.build_table(feats, phases, bins)
     quality = fp.explained_fraction(feats, table, phases)
+    window = max(int(round(cfg.daemon.window_s * prf)), 20)
+    contrast = direction_contrast(feats, phases, bins, window)
+    if contrast is not None and contrast < aliasing.MIRROR_DOUBT_Z:
+        warnings.append(
+            f"from here the fan's echoes turned either way are nearly alike (direction "
+            f"contrast {contrast:.1f} < {aliasing.MIRROR_DOUBT_Z:g}): the wall echoes that "
+            f"tell the directions apart are weak, so the direction will often be unknown "
+            f"and each new one waits for its own evidence; a place nearer a wall, further "
+            f"off the fan's axis, makes them stronger")
     blade_hz = r * prf
     rate_hz = blade_hz / cfg.scene.blades
     dropped = count_dropped(full.status, ended=True)
@@ -299,7 +309,34 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
         "device": device, "warmup_pulses": warm,
         "warnings": warnings,
     }
+    if contrast is not None:
+        meta["direction_contrast"] = round(contrast, 2)
     return Reference(table=table, mean_pulse=mean_pulse, meta=meta)
+
+
+def direction_contrast(feats: np.ndarray, phases: np.ndarray, bins: int, window: int
+                       ) -> float | None:
+    """How clearly the reference's own pulses tell their direction from its mirror: the
+    median, over windows of the analysis's length, of :func:`aliasing.mirror_evidence` of
+    each half's pulses against a table built from the other half (a table built from the
+    same pulses would favour their own path). None for too short a recording."""
+    n = len(feats)
+    half = n // 2
+    zs: list[float] = []
+    for test, train in ((slice(half, n), slice(0, half)), (slice(0, half), slice(half, n))):
+        table, _ = fp.build_table(feats[train], phases[train], bins)
+        fine = aliasing.fine_table(table)
+        f, p = feats[test], phases[test]
+        for s0 in range(0, len(f) - aliasing.MIRROR_MIN_PULSES + 1, window):
+            z, sweep = aliasing.mirror_evidence(
+                aliasing.distances(f[s0:s0 + window], fine), p[s0:s0 + window], fine)
+            if sweep >= aliasing.MIRROR_MIN_SWEEP and math.isfinite(z):
+                zs.append(z)
+    if not zs:
+        return None
+    zs.sort()                 # the median by hand: np.median imports numpy.ma (the daemon)
+    m = len(zs) // 2
+    return zs[m] if len(zs) % 2 else 0.5 * (zs[m - 1] + zs[m])
 
 
 def _device_figures(full: AlignedPulses, aligner: PulseAligner, prf: float, fs: float
@@ -629,6 +666,7 @@ class PulseAnalyzer:
     _pending: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     _since: int = 0
     decided: Decision | None = None               # the last decision (before the machine)
+    _quiet: bool = False                          # the last decision's short meter was quiet
     bursts: dev.BurstGate = field(default_factory=dev.BurstGate)   # pulses skipped: .bursts
     #: the locked track's unwrapped phase over the last window, (pulse, cycles), and the
     #: track it belongs to (a new lock or a move to another line starts it afresh)
@@ -694,6 +732,11 @@ class PulseAnalyzer:
             aliasing.fine_table(self.ref.table), self.window, self.ref.cycles_per_pulse,
             min_rate=self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit,
             ramp_accel=self._decide_settings.changing_hz_s * self.cfg.scene.blades / prf ** 2)
+        contrast = self.ref.meta.get("direction_contrast")
+        if isinstance(contrast, (int, float)) and contrast < aliasing.MIRROR_DOUBT_Z:
+            # the reference's own pulses barely told their direction from its mirror:
+            # every track's direction waits for its own evidence from the start
+            self.aliases.mirror_doubt = 1.0
 
     def process(self, block: AlignedPulses, *, rows: bool = False) -> list[dict[str, Any]]:
         """Match and track every pulse of a block; measure motion and decide every
@@ -717,7 +760,9 @@ class PulseAnalyzer:
             st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
             self._follow_phase(int(k), st)
             self._pending.append((feats[i], still_feats[i]))
-            self.aliases.push(int(k), dist[i])
+            tr = self.tracker
+            self.aliases.push(int(k), dist[i], math.nan if not st.locked else
+                              float(tr.fx[0]) if tr.fx is not None else st.phase)
             self._check_aliases()
             if self.aliases.count % RECHECK_EVERY == 0:
                 self._recheck_track()
@@ -1055,7 +1100,10 @@ class PulseAnalyzer:
         def moving() -> bool:
             motion, _ = self.motion.statistic()
             return motion >= self.cfg.tracking.motion_threshold
-        self.aliases.check(self.tracker, accel=self._clear_accel(), moving=moving)
+        resting = self.static.frozen or self._quiet or (
+            self.decided is not None and self.decided.direction == "stopped")
+        self.aliases.check(self.tracker, accel=self._clear_accel(), moving=moving,
+                           resting=resting)
 
     def _recheck_track(self) -> None:
         """A track the good matches mostly reject is given up for a line that fits them
@@ -1122,6 +1170,9 @@ class PulseAnalyzer:
         prf = self.cfg.prf_hz
         accel, _ = self.tracker.accel
         still, _ = self.still.statistic()
+        # the short meter sees no change beyond noise: the fan may be coming to rest, and
+        # a track coasting on is no direction to check against its mirror
+        self._quiet = still < self._decide_settings.still_threshold
         args = dict(still=still, accel=accel * prf,
                     changing_odds=self.tracker.follower_weight,
                     at_rest=self.static.frozen, seen_still=self._seen_still(),
@@ -1132,9 +1183,10 @@ class PulseAnalyzer:
                     ref_cycles_per_pulse=self.ref.cycles_per_pulse,
                     ref_rate_hz=float(self.ref.meta["rate_hz"]),
                     ref_direction=self.ref.meta.get("direction", "unknown"),
-                    alias_gap=self.aliases.verdict.gap if locked and self.aliases.verdict
-                    else math.inf,
-                    alias_note=self.aliases.note if locked else "",
+                    alias_gap=0.0 if locked and self.aliases.mirror_note else
+                    self.aliases.verdict.gap if locked and self.aliases.verdict else math.inf,
+                    alias_note=(self.aliases.mirror_note or self.aliases.note) if locked
+                    else "",
                     settings=self._decide_settings)
         d = decide(**args)
         mean = self.window_rate()

@@ -34,7 +34,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from .fingerprint import table_lookup
-from .tracking import Tracker, TrackId
+from .tracking import Tracker, TrackId, wrap
 
 #: Largest denominator q checked (simulated paper-room probes locked on aliases up to
 #: q = 24, the largest tried; 17 angles, 0.5 Hz, were mostly fine without the check).
@@ -45,6 +45,37 @@ MARGIN = 0.1
 RAMP_PULSES = 34
 #: Phase steps of the line fit per table bin.
 FIT_STEPS_PER_BIN = 4
+#: Evidence (a t statistic, :func:`mirror_evidence`) that a track's line fits the table
+#: better than its mirror line, below which its direction is in doubt: a significance, not
+#: a room's figure (random tuning scenes whose direction held gave 3.0-22 at the 5th
+#: percentile of 5 s windows, those that flipped -2.9 to 1.7).
+MIRROR_Z = 3.0
+#: Evidence under which a half window or more leaves the direction in doubt (between the
+#: two, neither: a hysteresis, so that a strong room's windows through a ramp do not
+#: count as doubt).
+MIRROR_DOUBT_Z = 2.0
+#: Share of a path's sweep going against its main direction above which the window holds
+#: a reversal: a path through a reversal and its mirror differ little; no verdict.
+MIRROR_TURN_SHARE = 0.1
+#: Least pulses of a track the mirror check looks at (about a second at PRF 34 Hz).
+MIRROR_MIN_PULSES = 34
+#: Least batches of the mirror statistic's batch means.
+MIRROR_BATCHES = 6
+#: Least phase the track's line moves over the pulses checked (blade cycles): below it a
+#: line and its mirror are nearly the same line.
+MIRROR_MIN_SWEEP = 0.25
+#: Least ratio of the slowest quarter's sweep to the briskest's in a window that may
+#: leave the direction in doubt (a steady rate; not a ramp from or to rest).
+MIRROR_STEADY = 0.6
+#: The share of doubtful checks (``AliasWatch.mirror_doubt``, forgetting a fifth per half
+#: window) from which a new track's direction waits for its own evidence: one doubtful
+#: half window in the last two or so.
+MIRROR_DOUBTFUL = 0.1
+#: Why a new track's direction waits, in a room where directions have been in doubt.
+TO_BE_CONFIRMED = ("direction to be confirmed: in this room the echoes of the fan turned "
+                   "either way have been about as alike as the pulses' noise allows")
+#: A path's step under this share of its brisk steps (90th percentile) stands still.
+MIRROR_STILL_STEP = 0.25
 
 
 def near_fractions(rate: float, *, span: int, rate_std: float = 0.0, max_q: int = MAX_Q,
@@ -191,6 +222,47 @@ def line_costs(features: np.ndarray | None, k: np.ndarray, fine: tuple[np.ndarra
     return cost, phase
 
 
+def mirror_evidence(dist: np.ndarray, path: np.ndarray, fine: tuple[np.ndarray, np.ndarray]
+                    ) -> tuple[float, float]:
+    """How much better the track's path of phases fits the table than its mirror image:
+    (t statistic, the sweep: blade cycles the path moved over).
+
+    Why: the direct echo of a flat fan is the same turned either way (the angle pattern is
+    symmetric about the blade pointing at the sensor); only the wall bounces tell the
+    directions apart. Where they are weak the reversed path fits almost as well, and the
+    per-pulse matches fall on either, so a track can lock on the mirror and flip. The path
+    ``p_k`` (the tracked phase of each pulse, ramps and all) and its mirror ``c - p_k`` are
+    each fitted with their best offset; their per-pulse distances are compared. Pulses of
+    one blade period see the same blade, so the differences are averaged per blade period
+    (batch means, at least ``MIRROR_BATCHES`` of them) before their mean is set against
+    its standard error.
+    """
+    d = np.asarray(dist, dtype=np.float64)
+    p = np.asarray(path, dtype=np.float64)
+    n, M = len(d), len(fine[0])
+    steps = np.abs(wrap(np.diff(p))) if n > 1 else np.zeros(0)
+    sweep = float(steps.sum())
+    if n < 2 or not sweep > 0:
+        return 0.0, sweep
+    win = sliding_window_view(np.concatenate([d, d], axis=1), M, axis=1)   # (n, M + 1, M)
+    rows = np.arange(n)
+    per = []
+    for sign in (1.0, -1.0):
+        s = np.mod(np.round(sign * p * M).astype(np.int64), M)
+        j = int(np.argmin(win[rows, s].sum(axis=0)))
+        per.append(d[rows, (s + j) % M])
+    delta = per[1] - per[0]
+    size = max(1, min(math.ceil(n / sweep), n // MIRROR_BATCHES))
+    nb = n // size
+    if nb < 2:
+        return 0.0, sweep
+    bm = delta[n - nb * size:].reshape(nb, size).mean(axis=1)
+    mean, sd = float(bm.mean()), float(bm.std(ddof=1))
+    if not sd > 0:
+        return (math.copysign(math.inf, mean) if mean != 0 else 0.0), sweep
+    return mean / (sd / math.sqrt(nb)), sweep
+
+
 @dataclass(frozen=True)
 class AliasVerdict:
     """Outcome of :func:`check_aliases`.
@@ -276,6 +348,7 @@ class AliasWatch:
     last_move: tuple[float, float, int] | None = None   # (from, to relative rate, pulse)
     count: int = 0                                  # pulses pushed
     _dist: np.ndarray = field(init=False, repr=False)
+    _phase: np.ndarray = field(init=False, repr=False)
     _pulse: np.ndarray = field(init=False, repr=False)
     _at: int = -(10 ** 9)
     _rate: float = float("nan")
@@ -290,28 +363,49 @@ class AliasWatch:
     verified: TrackId | None = None
     _ramp_track: TrackId | None = None
     _ramp_pulses: int = 0
+    #: why the track's direction is in doubt (its mirror line fits about as well); empty
+    #: when it is not (:meth:`_check_mirror`)
+    mirror_note: str = ""
+    #: share of the recent full-window mirror checks that found the direction in doubt
+    #: (forgetting): in a room where it has been, a new track's direction waits for its
+    #: own check
+    mirror_doubt: float = 0.0
+    mirror_moves: int = 0                           # tracks moved to their mirror line
+    _mirror_track: TrackId | None = None
+    _mirror_ok: TrackId | None = None               # the track whose line beat its mirror
+    _mirror_seen: TrackId | None = None             # the track whose mirror won one check
+    _mirror_at: int = -(10 ** 9)
 
     def __post_init__(self) -> None:
         self._dist = np.zeros((self.window, len(self.fine[0])))
         self._pulse = np.zeros(self.window, dtype=np.int64)
+        self._phase = np.full(self.window, math.nan)
         self._every = max(self.window // 4, 8)
 
-    def push(self, k: int, dist: np.ndarray) -> None:
-        """Pulse ``k``'s distances to the fine table (:func:`distances`)."""
+    def push(self, k: int, dist: np.ndarray, phase: float = math.nan) -> None:
+        """Pulse ``k``'s distances to the fine table (:func:`distances`) and the track's
+        phase at it (NaN: none)."""
         j = self.count % self.window
         self._dist[j] = dist
         self._pulse[j] = int(k)
+        self._phase[j] = float(phase)
         self.count += 1
 
-    def check(self, tr: Tracker, *, accel: float, moving: Callable[[], bool]) -> None:
+    def check(self, tr: Tracker, *, accel: float, moving: Callable[[], bool],
+              resting: bool = False) -> None:
         """Look at track ``tr`` if due (``accel``: its clear acceleration, cycles per
         pulse^2; ``moving()``: whether the fan is seen to move, asked only for a track
         standing still); may move the track."""
         if not tr.locked:
             self.verdict, self.note = None, ""
             self._rate = float("nan")
+            self.mirror_note = ""
             return
         self._note_ramp(tr)
+        if resting:
+            self.mirror_note = ""           # a fan at rest has no direction to doubt
+        elif self._check_mirror(tr):
+            return
         if tr.identity == self.verified:
             # a track that followed the phase continuously from a stretch where its line
             # was shown to be the true one cannot have jumped to an alias (a jump of 1/q
@@ -332,11 +426,7 @@ class AliasWatch:
         self._at = self.count
         self._rate = rate
         self.verdict, self.note = None, ""
-        n = min(self.count, self.window)
-        idx = (self.count - n + np.arange(n)) % self.window
-        k = self._pulse[idx]
-        keep = k >= (tr.start_k if tr.start_k is not None else k[0])
-        idx, k = idx[keep], k[keep]
+        idx, k = self._window_of(tr)
         if len(k) < 2:
             return
         sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
@@ -358,6 +448,112 @@ class AliasWatch:
         self.verdict = v
         if v is not None:
             self._act(tr, v, int(k[-1]))
+
+    def _window_of(self, tr: Tracker) -> tuple[np.ndarray, np.ndarray]:
+        """Ring indices and pulse numbers of the window's pulses since the track began."""
+        n = min(self.count, self.window)
+        idx = (self.count - n + np.arange(n)) % self.window
+        k = self._pulse[idx]
+        keep = k >= (tr.start_k if tr.start_k is not None else k[0])
+        return idx[keep], k[keep]
+
+    def _check_mirror(self, tr: Tracker) -> bool:
+        """Ask whether the track's path fits the table clearly better than its mirror
+        image (:func:`mirror_evidence`): every 8 pulses until it has, then every quarter
+        window. Clearly worse twice: the track is moved to the mirror line. Neither over
+        half a window: the direction is in doubt (``mirror_note``), and in a room where
+        that happens a new track's direction waits for its own clear check. True when the
+        track was moved (the alias check then waits for the next pulse)."""
+        ident = tr.identity
+        if ident != self._mirror_track:
+            self._mirror_track, self._mirror_at = ident, self.count
+            waits = ident != self._mirror_ok and self.mirror_doubt >= MIRROR_DOUBTFUL
+            self.mirror_note = TO_BE_CONFIRMED if waits else ""
+        confirmed = self._mirror_ok == ident
+        new = self.count - self._mirror_at
+        if new < (self._every if confirmed else 8):
+            return False
+        assert tr.x is not None
+        if abs(float(tr.x[1])) * (self.window // 2) < MIRROR_MIN_SWEEP:
+            return self._no_verdict()     # the track stands (near zero): nothing to tell
+        idx, k = self._window_of(tr)
+        path = self._phase[idx]
+        keep = np.isfinite(path)
+        idx, k, path = idx[keep], k[keep], path[keep]
+        if len(k) > 1:
+            # pulses where the path stands (a fan at rest before it started, the turn of a
+            # reversal) fit a path and its mirror alike: only those where it moves
+            step = np.abs(wrap(np.diff(path, prepend=path[0])))
+            step[0] = step[1] if len(step) > 1 else 0.0
+            # (sorted by hand: np.percentile imports numpy.ma, 1.9 MiB in the daemon)
+            brisk = float(np.sort(step)[int(0.9 * (len(step) - 1))])
+            moves = step >= MIRROR_STILL_STEP * brisk
+            idx, k, path = idx[moves], k[moves], path[moves]
+        if len(k) < MIRROR_MIN_PULSES:
+            return self._no_verdict()
+        signed = wrap(np.diff(path))
+        back = min(float(signed[signed > 0].sum()), float(-signed[signed < 0].sum()))
+        z, sweep = mirror_evidence(self._dist[idx], path, self.fine)
+        if sweep < MIRROR_MIN_SWEEP or back > MIRROR_TURN_SHARE * sweep:
+            return self._no_verdict()   # a path and its mirror are nearly the same
+        self._mirror_at = self.count
+        # doubt is read only from a steady half window or more: on a ramp from or to
+        # rest the slow end of the path tells little, and a strong room's reversals
+        # read 1.8-2 there (tuned room)
+        quarters = [float(np.abs(q).sum()) for q in np.array_split(signed, 4)]
+        full = len(k) >= self.window // 2 and min(quarters) >= MIRROR_STEADY * max(quarters)
+        # the doubt forgets at a fifth per half window of new pulses
+        forget = 0.2 * min(new / max(self.window // 2, 1), 1.0)
+        if z >= MIRROR_Z:
+            self._mirror_ok, self._mirror_seen, self.mirror_note = ident, None, ""
+            if full:
+                self.mirror_doubt *= 1.0 - forget
+            return False
+        doubt = full and z < MIRROR_DOUBT_Z
+        if z <= -MIRROR_Z or doubt:
+            self.mirror_doubt += forget * (1.0 - self.mirror_doubt)
+        if z <= -MIRROR_Z:
+            assert tr.x is not None
+            w = float(tr.x[1])
+            if self._mirror_seen == ident:
+                # the mirror image of the line at the last pulse: the same offset from the
+                # best mirror fit, rate reversed
+                tr.relock(-w, (-float(path[-1])) % 1.0 + self._mirror_offset(idx, path),
+                          int(k[-1]))
+                self._mirror_ok = self._mirror_track = tr.identity
+                self._mirror_seen, self.mirror_note = None, ""
+                self.mirror_moves += 1
+                self._rate = -w
+                return True
+            self._mirror_seen = ident
+            r0 = self.ref_cycles_per_pulse
+            self.mirror_note = (f"direction in doubt: the reversed path (relative rate "
+                                f"{-w / r0:+.3f}) fits the reference table better than the "
+                                f"track's {w / r0:+.3f} (t {z:.1f}), to be confirmed")
+        elif doubt:
+            self._mirror_ok = None
+            self.mirror_note = (f"direction in doubt: the fan's echoes turned either way fit "
+                                f"the reference table about equally (t {z:.1f} < "
+                                f"{MIRROR_DOUBT_Z:g}); from where the device stands the "
+                                "wall echoes that tell the directions apart are weak: a "
+                                "place nearer a wall, off the fan's axis, makes them "
+                                "stronger")
+        return False
+
+    def _no_verdict(self) -> bool:
+        """No check possible now: a doubt found on earlier pulses does not carry over
+        (they may have been a reversal's turn); in a doubtful room the track waits."""
+        if self.mirror_note.startswith("direction in doubt"):
+            self.mirror_note = "" if self.mirror_doubt < MIRROR_DOUBTFUL else TO_BE_CONFIRMED
+        return False
+
+    def _mirror_offset(self, idx: np.ndarray, path: np.ndarray) -> float:
+        """The best offset (cycles) of the mirrored path ``-p_k`` against the table."""
+        d = self._dist[idx]
+        M = len(self.fine[0])
+        win = sliding_window_view(np.concatenate([d, d], axis=1), M, axis=1)
+        s = np.mod(np.round(-path * M).astype(np.int64), M)
+        return int(np.argmin(win[np.arange(len(d)), s].sum(axis=0))) / M
 
     def _note_ramp(self, tr: Tracker) -> None:
         """Count the pulses of this track on which its matches favour a changing rate
