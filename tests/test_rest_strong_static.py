@@ -93,7 +93,15 @@ def test_a_resting_fan_among_strong_static_echoes_reads_as_noise(drift_ppm):
     rest = np.array(rest_stats)
     assert np.median(rest) <= np.median(null) + 0.02, (np.median(rest), np.median(null))
     assert np.percentile(rest, 95) <= np.percentile(null, 95) + 0.03
+    # the stop is called within 3 s of rest and holds. An event marks it only where a
+    # turning direction was known before: with the fan's echoes 30 dB down the wall
+    # echoes that tell its direction are weak, and under drift the direction can stay in
+    # doubt (unknown) all the while it turns (docs/dynamics.md, the mirror check)
+    called = [t for t, d in states if d == "stopped" and t > REST_FROM - 1.0]
+    assert called and REST_FROM <= called[0] <= REST_FROM + 3.0, (called[:3], events)
+    after = [d for t, d in states if t >= called[0]]
+    assert all(d == "stopped" for d in after)
+    turned = any(d in ("same", "reversed") for t, d in states if t < REST_FROM)
     stops = [t for k, t in events if k == "stopped"]
-    assert len(stops) == 1 and REST_FROM <= stops[0] <= REST_FROM + 3.0, events
-    after = [d for t, d in states if t > stops[0]]
-    assert after and all(d == "stopped" for d in after)
+    assert len(stops) == (1 if turned else 0), events
+    assert all(REST_FROM <= t <= REST_FROM + 3.0 for t in stops), events
