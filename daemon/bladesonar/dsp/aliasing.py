@@ -50,9 +50,9 @@ FIT_STEPS_PER_BIN = 4
 #: a room's figure (random tuning scenes whose direction held gave 3.0-22 at the 5th
 #: percentile of 5 s windows, those that flipped -2.9 to 1.7).
 MIRROR_Z = 3.0
-#: Evidence under which a half window or more leaves the direction in doubt (between the
-#: two, neither: a hysteresis, so that a strong room's windows through a ramp do not
-#: count as doubt).
+#: Evidence under which a whole window of steady turning leaves the direction in doubt
+#: (between the two, neither: a hysteresis, so that a strong room's windows through a
+#: ramp do not count as doubt).
 MIRROR_DOUBT_Z = 2.0
 #: Share of a path's sweep going against its main direction above which the window holds
 #: a reversal: a path through a reversal and its mirror differ little; no verdict.
@@ -461,9 +461,10 @@ class AliasWatch:
         """Ask whether the track's path fits the table clearly better than its mirror
         image (:func:`mirror_evidence`): every 8 pulses until it has, then every quarter
         window. Clearly worse twice: the track is moved to the mirror line. Neither over
-        half a window: the direction is in doubt (``mirror_note``), and in a room where
-        that happens a new track's direction waits for its own clear check. True when the
-        track was moved (the alias check then waits for the next pulse)."""
+        a whole window of steady turning: the direction is in doubt (``mirror_note``),
+        and in a room where that happens a new track's direction waits for its own clear
+        check. True when the track was moved (the alias check then waits for the next
+        pulse)."""
         ident = tr.identity
         if ident != self._mirror_track:
             self._mirror_track, self._mirror_at = ident, self.count
@@ -497,11 +498,12 @@ class AliasWatch:
         if sweep < MIRROR_MIN_SWEEP or back > MIRROR_TURN_SHARE * sweep:
             return self._no_verdict()   # a path and its mirror are nearly the same
         self._mirror_at = self.count
-        # doubt is read only from a steady half window or more: on a ramp from or to
-        # rest the slow end of the path tells little, and a strong room's reversals
-        # read 1.8-2 there (tuned room)
+        # doubt is read only from a whole window of steady turning: on a ramp from or to
+        # rest the slow end of the path tells little, and a strong room's reversals read
+        # 1.8-2 there; so did its half windows of a fan at a third of the reference's
+        # speed, whose whole windows read 2.6 (tuned room)
         quarters = [float(np.abs(q).sum()) for q in np.array_split(signed, 4)]
-        full = len(k) >= self.window // 2 and min(quarters) >= MIRROR_STEADY * max(quarters)
+        full = len(k) >= self.window - 1 and min(quarters) >= MIRROR_STEADY * max(quarters)
         # the doubt forgets at a fifth per half window of new pulses
         forget = 0.2 * min(new / max(self.window // 2, 1), 1.0)
         if z >= MIRROR_Z:
