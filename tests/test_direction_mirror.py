@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
 import pytest
 
 from bladesonar import config
@@ -20,6 +19,7 @@ from bladesonar.live import LiveAnalyzer
 from bladesonar.sim import random_scene
 from bladesonar.sim.render import Simulator, simulate
 from bladesonar.sim.schedule import parse
+from live_feed import pulses
 
 pytestmark = pytest.mark.slow
 
@@ -51,19 +51,11 @@ def test_with_no_wall_echo_the_live_direction_is_unknown_not_a_flipping_guess():
     dr, scene, cfg, ref = _setup(0.0)
     sch = parse(f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60")
     sim = Simulator(scene, cfg, sch, snr_db=SNR_DB, seed=SEED + 1, include_paths=False)
-    live = LiveAnalyzer(cfg, ref)
-    pri = cfg.waveform.pri_samples
-    states, events, pos, buf = [], [], 0, np.zeros(0)
-    for xs, _ in sim.chunks(40.0):
-        buf = np.concatenate([buf, xs])
-        n = len(buf) // pri
-        for i in range(n):
-            est = live.push(buf[i * pri:(i + 1) * pri], pos)
-            pos += pri
-            events += live.take_events()
-            if est is not None and pos / cfg.audio.sample_rate > 5.0:
-                states.append(est.direction.value)
-        buf = buf[n * pri:]
+    states, events = [], []
+    for pos, est, fired in pulses(sim, LiveAnalyzer(cfg, ref), 40.0):
+        events += fired
+        if est is not None and pos / cfg.audio.sample_rate > 5.0:
+            states.append(est.direction.value)
     # the fan turns as the reference did: 'reversed' would be a coin's answer
     assert states.count("reversed") <= 0.02 * len(states), states
     assert not [e for e in events if e.kind == "reversed"], events

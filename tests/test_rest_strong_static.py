@@ -27,6 +27,7 @@ from bladesonar.sim import random_scene
 from bladesonar.sim.render import Simulator, simulate
 from bladesonar.sim.schedule import parse
 from bladesonar.sim.score import true_time
+from live_feed import pulses
 
 pytestmark = pytest.mark.slow
 
@@ -69,24 +70,17 @@ def test_a_resting_fan_among_strong_static_echoes_reads_as_noise(drift_ppm):
     sim = Simulator(scene, cfg, sch, snr_db=SNR_DB, seed=SEED + 1, drift_ppm=drift_ppm,
                     nuisances=dr.nuisances, include_paths=False)
     live = LiveAnalyzer(cfg, ref)
-    pri, fs = cfg.waveform.pri_samples, cfg.audio.sample_rate
+    fs = cfg.audio.sample_rate
     rest_stats, states, events = [], [], []
-    pos, buf = 0, np.zeros(0)
-    for xs, _ in sim.chunks(70.0):
-        buf = np.concatenate([buf, xs])
-        n = len(buf) // pri
-        for i in range(n):
-            est = live.push(buf[i * pri:(i + 1) * pri], pos)
-            pos += pri
-            an = live.analyzer
-            t = true_time(pos / fs, drift_ppm)
-            events += [(e.kind, true_time(e.t_s, drift_ppm)) for e in live.take_events()]
-            if est is None or an is None or an._since != 0:
-                continue
-            states.append((t, est.direction.value))
-            if t > REST_FROM + 2.0:      # the short window holds only the resting fan
-                rest_stats.append(an.still.statistic()[0])
-        buf = buf[n * pri:]
+    for pos, est, fired in pulses(sim, live, 70.0):
+        an = live.analyzer
+        t = true_time(pos / fs, drift_ppm)
+        events += [(e.kind, true_time(e.t_s, drift_ppm)) for e in fired]
+        if est is None or an is None or an._since != 0:
+            continue
+        states.append((t, est.direction.value))
+        if t > REST_FROM + 2.0:      # the short window holds only the resting fan
+            rest_stats.append(an.still.statistic()[0])
     an = live.analyzer
     assert an is not None
     null = _noise_null(an.still._s.shape[1], an.still.window, an.still.max_lag)
