@@ -19,7 +19,7 @@ import numpy as np
 from bladesonar import config
 from bladesonar.analysis import Reference, build_reference, folds_multipath, unfolding_pri
 from bladesonar.io.scene_file import load_scene
-from bladesonar.live import LiveAnalyzer
+from bladesonar.live import LiveAnalyzer, capture_pulses
 from bladesonar.runtime_report import TRANSITION_TARGETS_S
 from bladesonar.sim import random_scene
 from bladesonar.sim.render import Simulator, simulate
@@ -102,23 +102,17 @@ def run_day(cfg: config.Config, sch: Schedule, sim: Simulator, live: LiveAnalyze
     pri, fs = cfg.waveform.pri_samples, cfg.audio.sample_rate
     events: list[tuple[str, float]] = []
     states: list[tuple[float, str, str | None, float | None]] = []
-    pos = 0
-    buf = np.zeros(0)
     t0, c0 = time.time(), time.process_time()
-    for xs, _ in sim.chunks(seconds):
-        buf = np.concatenate([buf, xs])
-        n = len(buf) // pri
-        for i in range(n):
-            est = live.push(buf[i * pri:(i + 1) * pri], pos)
-            pos += pri
-            if est is None or (block_pulses > 1 and (pos // pri) % block_pulses):
-                continue    # (in blocks, the daemon publishes what it has after each block)
-            states.append((pos / fs, est.direction.value, est.rotation, est.rate_hz))
-            events += [(e.kind, e.t_s) for e in live.take_events()]
-        buf = buf[n * pri:]
-        if progress:
+    every = int(6.0 * fs) // pri        # progress every 6 s of the day
+    for pos, x in capture_pulses((xs for xs, _ in sim.chunks(seconds)), pri):
+        est = live.push(x, pos - pri)
+        if progress and (pos // pri) % every == 0:
             print(f"\r{pos / fs / 60:6.1f} of {seconds / 60:.0f} simulated minutes", end="",
                   file=sys.stderr, flush=True)
+        if est is None or (block_pulses > 1 and (pos // pri) % block_pulses):
+            continue    # (in blocks, the daemon publishes what it has after each block)
+        states.append((pos / fs, est.direction.value, est.rotation, est.rate_hz))
+        events += [(e.kind, e.t_s) for e in live.take_events()]
     wall, cpu = time.time() - t0, time.process_time() - c0
     if progress:
         print(file=sys.stderr)

@@ -9,6 +9,7 @@ it gets here from a warm-up: the running static estimate is primed from the firs
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -45,6 +46,19 @@ def predicted(d: Decision, ahead_s: float, floor_hz: float) -> Decision:
     hz = max(d.rate_hz + change * min(ahead_s, MAX_AHEAD_S), floor_hz)
     rel = d.relative_rate * hz / d.rate_hz if d.rate_hz > 0 else d.relative_rate
     return replace(d, rate_hz=hz, relative_rate=rel, rpm=hz * 60.0)
+
+
+def capture_pulses(chunks: Iterable[np.ndarray], pri: int) -> Iterator[tuple[int, np.ndarray]]:
+    """A capture stream in chunks of any size, cut into PRI-long blocks as the daemon
+    pushes them: (the stream sample after the block, the block)."""
+    pos, buf = 0, np.zeros(0)
+    for xs in chunks:
+        buf = np.concatenate([buf, xs])
+        n = len(buf) // pri
+        for i in range(n):
+            pos += pri
+            yield pos, buf[i * pri:(i + 1) * pri]
+        buf = buf[n * pri:]
 
 
 def _rounded(v: float | None, digits: int) -> float | None:
