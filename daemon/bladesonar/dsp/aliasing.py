@@ -28,7 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from fractions import Fraction
 from functools import lru_cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -173,6 +173,20 @@ def distances(features: np.ndarray, fine: tuple[np.ndarray, np.ndarray]) -> np.n
     return d
 
 
+def _doubled_rows(d: np.ndarray) -> np.ndarray:
+    """Row k of ``d`` rotated by any shift s is a contiguous window of the doubled row:
+    (n, M + 1, M) views, so a path gathers n slices instead of n * M single elements."""
+    return sliding_window_view(np.concatenate([d, d], axis=1), d.shape[1], axis=1)
+
+
+def _best_offset(win: np.ndarray, shifts: np.ndarray) -> tuple[int, float]:
+    """The offset j (fine-table steps) that fits a path best, and its summed distance:
+    the path puts pulse k at fine phase ``shifts[k] + j`` (``win``: :func:`_doubled_rows`)."""
+    c = win[np.arange(len(shifts)), shifts].sum(axis=0)
+    j = int(np.argmin(c))
+    return j, float(c[j])
+
+
 def line_costs(features: np.ndarray | None, k: np.ndarray, fine: tuple[np.ndarray, np.ndarray],
                rates: np.ndarray, *, dist: np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -205,27 +219,31 @@ def line_costs(features: np.ndarray | None, k: np.ndarray, fine: tuple[np.ndarra
         d = np.asarray(dist, dtype=np.float64)
     kk = np.asarray(k, dtype=np.float64) - float(k[-1])
     M = len(fine[0])
-    # row k of the line at rate w is d[k] rotated by s_k = round(w k M): a contiguous window
-    # of the doubled row, so each rate gathers n slices instead of n * M single elements
-    win = sliding_window_view(np.concatenate([d, d], axis=1), M, axis=1)   # (n, M + 1, M)
-    rows = np.arange(len(d))
+    # row k of the line at rate w is d[k] rotated by s_k = round(w k M)
+    win = _doubled_rows(d)
     n = max(len(d), 1)
     rates = np.asarray(rates, dtype=np.float64)
     shifts = np.mod(np.round(rates[:, None] * kk[None, :] * M).astype(np.int64), M)
     cost = np.empty(len(rates))
     phase = np.empty(len(rates))
     for i in range(len(rates)):
-        c = win[rows, shifts[i]].sum(axis=0)
-        j = int(np.argmin(c))
-        cost[i] = c[j] / n
+        j, c = _best_offset(win, shifts[i])
+        cost[i] = c / n
         phase[i] = j / M
     return cost, phase
 
 
+class MirrorEvidence(NamedTuple):
+    """What :func:`mirror_evidence` found."""
+
+    t: float            # how much better the path fits than its mirror (a t statistic)
+    sweep: float        # blade cycles the path moved over
+    offset: float       # the mirror image's best offset c (cycles): it is ``c - p_k``
+
+
 def mirror_evidence(dist: np.ndarray, path: np.ndarray, fine: tuple[np.ndarray, np.ndarray]
-                    ) -> tuple[float, float]:
-    """How much better the track's path of phases fits the table than its mirror image:
-    (t statistic, the sweep: blade cycles the path moved over).
+                    ) -> MirrorEvidence:
+    """How much better the track's path of phases fits the table than its mirror image.
 
     Why: the direct echo of a flat fan is the same turned either way (the angle pattern is
     symmetric about the blade pointing at the sensor); only the wall bounces tell the
@@ -243,24 +261,26 @@ def mirror_evidence(dist: np.ndarray, path: np.ndarray, fine: tuple[np.ndarray, 
     steps = np.abs(wrap(np.diff(p))) if n > 1 else np.zeros(0)
     sweep = float(steps.sum())
     if n < 2 or not sweep > 0:
-        return 0.0, sweep
-    win = sliding_window_view(np.concatenate([d, d], axis=1), M, axis=1)   # (n, M + 1, M)
+        return MirrorEvidence(0.0, sweep, 0.0)
+    win = _doubled_rows(d)
     rows = np.arange(n)
-    per = []
+    per, offset = [], 0.0
     for sign in (1.0, -1.0):
         s = np.mod(np.round(sign * p * M).astype(np.int64), M)
-        j = int(np.argmin(win[rows, s].sum(axis=0)))
+        j, _ = _best_offset(win, s)
         per.append(d[rows, (s + j) % M])
+        offset = j / M                  # (kept from the mirror's fit, the second)
     delta = per[1] - per[0]
     size = max(1, min(math.ceil(n / sweep), n // MIRROR_BATCHES))
     nb = n // size
     if nb < 2:
-        return 0.0, sweep
+        return MirrorEvidence(0.0, sweep, offset)
     bm = delta[n - nb * size:].reshape(nb, size).mean(axis=1)
     mean, sd = float(bm.mean()), float(bm.std(ddof=1))
     if not sd > 0:
-        return (math.copysign(math.inf, mean) if mean != 0 else 0.0), sweep
-    return mean / (sd / math.sqrt(nb)), sweep
+        return MirrorEvidence(math.copysign(math.inf, mean) if mean != 0 else 0.0, sweep,
+                              offset)
+    return MirrorEvidence(mean / (sd / math.sqrt(nb)), sweep, offset)
 
 
 @dataclass(frozen=True)
@@ -475,7 +495,8 @@ class AliasWatch:
         if new < (self._every if confirmed else 8):
             return False
         assert tr.x is not None
-        if abs(float(tr.x[1])) * (self.window // 2) < MIRROR_MIN_SWEEP:
+        w = float(tr.x[1])
+        if abs(w) * (self.window // 2) < MIRROR_MIN_SWEEP:
             return self._no_verdict()     # the track stands (near zero): nothing to tell
         idx, k = self._window_of(tr)
         path = self._phase[idx]
@@ -494,7 +515,7 @@ class AliasWatch:
             return self._no_verdict()
         signed = wrap(np.diff(path))
         back = min(float(signed[signed > 0].sum()), float(-signed[signed < 0].sum()))
-        z, sweep = mirror_evidence(self._dist[idx], path, self.fine)
+        z, sweep, mirror_offset = mirror_evidence(self._dist[idx], path, self.fine)
         if sweep < MIRROR_MIN_SWEEP or back > MIRROR_TURN_SHARE * sweep:
             return self._no_verdict()   # a path and its mirror are nearly the same
         self._mirror_at = self.count
@@ -515,13 +536,9 @@ class AliasWatch:
         if z <= -MIRROR_Z or doubt:
             self.mirror_doubt += forget * (1.0 - self.mirror_doubt)
         if z <= -MIRROR_Z:
-            assert tr.x is not None
-            w = float(tr.x[1])
             if self._mirror_seen == ident:
-                # the mirror image of the line at the last pulse: the same offset from the
-                # best mirror fit, rate reversed
-                tr.relock(-w, (-float(path[-1])) % 1.0 + self._mirror_offset(idx, path),
-                          int(k[-1]))
+                # the mirror image of the line at the last pulse, rate reversed
+                tr.relock(-w, mirror_offset - float(path[-1]), int(k[-1]))
                 self._mirror_ok = self._mirror_track = tr.identity
                 self._mirror_seen, self.mirror_note = None, ""
                 self.mirror_moves += 1
@@ -548,14 +565,6 @@ class AliasWatch:
         if self.mirror_note.startswith("direction in doubt"):
             self.mirror_note = "" if self.mirror_doubt < MIRROR_DOUBTFUL else TO_BE_CONFIRMED
         return False
-
-    def _mirror_offset(self, idx: np.ndarray, path: np.ndarray) -> float:
-        """The best offset (cycles) of the mirrored path ``-p_k`` against the table."""
-        d = self._dist[idx]
-        M = len(self.fine[0])
-        win = sliding_window_view(np.concatenate([d, d], axis=1), M, axis=1)
-        s = np.mod(np.round(-path * M).astype(np.int64), M)
-        return int(np.argmin(win[np.arange(len(d)), s].sum(axis=0))) / M
 
     def _note_ramp(self, tr: Tracker) -> None:
         """Count the pulses of this track on which its matches favour a changing rate
