@@ -70,6 +70,50 @@ def test_clipped_coupling_is_timed_by_its_ringing_at_high_snr(over, drift):
     assert np.max(np.abs(err - np.mean(err))) < 2e-3
 
 
+def _coarse_clipped(n: int, drift: float, lose_at: int | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """n pulses of a coupling with no ringing (an ideal speaker) 4 times full scale,
+    clipped: timed from its plateaus' edges only. ``lose_at``: one sample lost in that
+    pulse's gate. (the edges found, their pulse numbers, the true edges as received)."""
+    x, edges, _ = pulse_train(n, PRI, rate=0.05, drift_ppm=drift, noise=1e-4, direct=0.0)
+    for e in edges:
+        add_pulse(x, e, 4.0)
+    x = np.clip(x, -FULL, FULL)
+    true = edges.copy()
+    if lose_at is not None:
+        cut = int(edges[lose_at]) + 600
+        x = np.delete(x, cut)
+        true[lose_at + 1:] -= 1.0
+    got = align(x, PRI, Gate(0, PRI - 24, FS, 343.0))
+    keep = got.index < n
+    return got.edges[keep], got.index[keep], true
+
+
+@pytest.mark.parametrize("drift", [20.0, -60.0])
+def test_a_coarsely_timed_clipped_coupling_keeps_to_the_clocks_line(drift):
+    """Timed from its plateaus' edges, a clipped coupling's edge is off by a function of
+    the sub-sample position, which drift sweeps through every 1 / (drift x PRI) pulses
+    (39 at 20 ppm). The schedule loop keeps the edges on the clocks' line within 0.02
+    sample once settled (a loop with a memory of 6 pulses followed that error: 0.1
+    sample, a slow change of the whole gate that a fan at rest showed as motion)."""
+    edges, index, true = _coarse_clipped(700, drift)
+    err = edges - true[index]
+    settled = err[index >= 450]
+    assert np.max(np.abs(settled - np.mean(settled))) < 0.02, np.ptp(settled)
+
+
+def test_a_clipped_coupling_follows_a_lost_sample():
+    """One sample lost inside pulse 500: the edges after it are a sample earlier. The
+    loop, settled to its long memory, moves there at once (within the coarse timing's
+    own error, 0.2 sample) and, averaging the measurements since, is back on the clocks'
+    line within 0.03 after 100 pulses, the PRI kept."""
+    edges, index, true = _coarse_clipped(660, 20.0, lose_at=500)
+    err = edges - true[index]
+    line = np.mean(err[(index >= 450) & (index < 500)])
+    assert np.max(np.abs(err[(index >= 503) & (index < 600)] - line)) < 0.2
+    assert np.max(np.abs(err[(index >= 600) & (index < 659)] - line)) < 0.03
+
+
 @pytest.mark.parametrize("ringing", [True, False])
 def test_only_a_ringing_tail_times_a_clipped_coupling(ringing):
     """The tail fit reads a known sub-sample delay off a ringing coupling (0.37 sample,
