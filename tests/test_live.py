@@ -188,3 +188,18 @@ def test_the_published_rate_on_a_ramp_is_the_fans_at_the_time_it_is_published(
     assert lag < -0.002
     # ... the published one is not, and is within 2 % of 0.45 Hz of it in the median
     assert abs(float(np.median(published))) < min(abs(lag) / 2, 0.009)
+
+
+def test_a_fan_turning_with_its_direction_in_doubt_is_published_as_rotating():
+    """The state's ``rotating`` (Home Assistant's Running) is on for a fan known to turn
+    whose direction is in doubt, off only when stopped, unknown when nothing is known."""
+    from bladesonar.dsp.decide import Decision
+    from bladesonar.live import Estimate
+
+    def est(direction, turning=False):
+        d = Decision(direction, None, None, 0.4 if direction != "stopped" else 0.0, None,
+                     0.3, "test", turning=turning)
+        return Estimate.from_decision(d, window_s=5.0, reference=None).fields()["rotating"]
+    assert est("unknown", turning=True) is True
+    assert est("unknown") is None and est("stopped", turning=True) is False
+    assert est("same") is True and est("reversed") is True

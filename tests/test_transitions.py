@@ -289,6 +289,50 @@ def test_state_machine_needs_confirmation_and_fires_between_known_states():
     assert "reversed" not in published[40:56]      # unconfirmed: published as unknown
 
 
+def _doubt(rate=0.4):
+    """A fan turning at ``rate`` whose direction is in doubt (its mirror fits as well)."""
+    return Decision("unknown", None, None, rate, None, 0.3, "direction in doubt",
+                    turning=True)
+
+
+def test_a_fan_turning_either_way_starts_and_stops_in_a_doubtful_room():
+    """Closed form, 34 pulses/s, confirm 17 pulses, stop confirm 34: where no direction
+    is known, 'turning, direction in doubt' is a known kind of its own (a start and a
+    stop fire); a direction found for it later fires nothing, a reversal from there
+    fires as usual; where a direction is known, doubt is only unknown."""
+    def run(seq):
+        tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=1.0,
+                                            max_reversal_hz_s=0.0), 34.0)
+        fired, out = [], []
+        for i, d in enumerate(seq):
+            o, f = tr.step(i / 34.0, i, _doubt() if d == "doubt" else _d(d))
+            fired += [(e.kind, e.pulse, e.direction) for e in f]
+            out.append((o.direction, o.turning))
+        return fired, out
+    fired, out = run(["stopped"] * 40 + ["doubt"] * 30 + ["stopped"] * 40)
+    assert fired == [("started", 40 + 16, "unknown"), ("stopped", 70 + 33, "stopped")]
+    # while the start is confirmed the fan is not yet said to turn; then it is
+    assert out[40 + 15] == ("unknown", False) and out[40 + 16] == ("unknown", True)
+    fired, _ = run(["stopped"] * 40 + ["doubt"] * 30 + ["same"] * 30 + ["reversed"] * 30)
+    assert fired == [("started", 56, "unknown"), ("reversed", 100 + 16, "reversed")]
+    # a known direction: doubt changes nothing, and a stop after it is timed as before
+    fired, out = run(["same"] * 30 + ["doubt"] * 30 + ["stopped"] * 40)
+    assert fired == [("stopped", 60 + 33, "stopped")]
+    assert out[40] == ("unknown", True)
+
+
+def test_a_slow_doubtful_answer_starts_nothing():
+    """Below the rate a new direction needs (twice the floor) a doubtful answer is no
+    start either: the end of a spin-down leaves slow, shaky tracks."""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.0), 34.0)
+    fired = []
+    for i in range(40):
+        fired += tr.step(i / 34.0, i, _d("stopped"))[1]
+    for i in range(40, 100):
+        fired += tr.step(i / 34.0, i, _doubt(rate=0.08))[1]
+    assert fired == []
+
+
 def test_unknown_answers_pause_the_confirmation_within_twice_its_time():
     """Closed form, 34 pulses/s, confirm 17 pulses: 10 'reversed', 5 unknown, 7 more
     confirm at the 7th (17 within 34 pulses); 9, then 30 unknown, then 9 never do (at

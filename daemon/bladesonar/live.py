@@ -92,12 +92,16 @@ class Estimate:
     reference: str | None = None
     """Id of the reference in use (first 12 hex digits of its file's sha256)."""
     warnings: tuple[str, ...] = field(default=())
+    turning: bool = False
+    """The fan turns though its direction is not known (:attr:`Decision.turning`)."""
 
     @property
     def rotating(self) -> bool | None:
-        """True when turning either way, False when stopped, None when not known."""
-        return {Direction.SAME: True, Direction.REVERSED: True,
-                Direction.STOPPED: False}.get(self.direction)
+        """True when turning either way (its direction known or not), False when
+        stopped, None when not known."""
+        if self.direction is Direction.UNKNOWN:
+            return True if self.turning else None
+        return self.direction is not Direction.STOPPED
 
     @property
     def known(self) -> bool:
@@ -111,7 +115,8 @@ class Estimate:
                    rpm=_rounded(d.rpm, 3), rate_state=d.rate_state,
                    rate_change_hz_s=_rounded(d.rate_change_hz_s, 4),
                    confidence=_rounded(d.confidence, 4) or 0.0, reason=d.reason,
-                   window_s=window_s, reference=reference, warnings=tuple(d.warnings))
+                   window_s=window_s, reference=reference, warnings=tuple(d.warnings),
+                   turning=d.turning and d.direction != Direction.STOPPED.value)
 
     @classmethod
     def unknown(cls, reason: str, *, reference: str | None = None) -> Estimate:

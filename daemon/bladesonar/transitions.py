@@ -35,6 +35,12 @@ evidence has held for a while:
   from rest (a ``stopped`` answer): a new lock near zero once claimed the old direction
   at 0.26 Hz 0.15 s after the meter saw the fan at rest, and timed from that a true
   reversal waited 0.7 s more;
+* ``turning`` with the direction in doubt (``~``): where no direction is known, a
+  decision that has the fan turning well above the floor but cannot tell which way
+  (:attr:`Decision.turning`: a room whose echoes fit the fan's mirror image as well as
+  the fan) is a known kind of its own, so a start and a stop still fire in such a room;
+  a direction confirmed after it fires nothing (the fan did not change). Where a
+  direction is known, such a decision is ``unknown``;
 * everything else is ``unknown`` and leaves the last known state in place.
 
 Events fire only on a change of the *known* state: ``started`` (stopped -> turning),
@@ -132,6 +138,10 @@ def _kind(direction: str) -> str | None:
     return {"stopped": "stopped", "same": "+", "reversed": "-"}.get(direction)
 
 
+#: The kinds that turn: one way, the other, or either ('~': the direction in doubt).
+TURNING = ("+", "-", "~")
+
+
 class Transitions:
     """Feed one decision per pulse to :meth:`step`; it returns the state to publish and
     the events confirmed by that pulse.
@@ -147,7 +157,7 @@ class Transitions:
         self.settings = settings
         self._confirm = max(int(round(settings.confirm_s * prf_hz)), 1)
         self._stop_confirm = max(int(round(settings.stop_confirm_s * prf_hz)), 1)
-        self.known: str | None = None        # confirmed kind: 'stopped', '+', '-'
+        self.known: str | None = None        # confirmed kind: 'stopped', '+', '-', '~'
         self.known_decision: Decision | None = None
         self._cand: str | None = None        # the last known kind answered
         self._prev_kind: str | None = None   # the kind the previous decision answered
@@ -170,34 +180,36 @@ class Transitions:
         """A decision in, standing for the last ``pulses`` pulses (the analysis decides
         every few pulses); (the state to publish, events confirmed now) out."""
         cand = _kind(d.direction)
+        if cand is None and d.turning and self.known not in ("+", "-"):
+            cand = "~"
         slow = self.settings.change_factor * self.settings.rate_floor_hz
-        if cand in ("+", "-") and (cand != self.known or self._past_zero(t_s, cand)) \
+        if cand in TURNING and (cand != self.known or self._past_zero(t_s, cand)) \
                 and not (d.rate_hz or 0.0) >= slow:
             # a new direction (a start, a reversal) is taken only from a rate clearly above
             # the floor: the end of a spin-down leaves slow, shaky tracks of either sign.
             # So is the old one once its slowing line has passed zero: the fan has come
             # to rest, and a new lock on it claimed 0.07-0.09 Hz the old way 1.3 s later
-            d = replace(d, direction=Direction.UNKNOWN.value, rotation=None,
+            d = replace(d, direction=Direction.UNKNOWN.value, rotation=None, turning=False,
                         reason=f"turning slowly ({d.rate_hz or 0.0:.3f} Hz < {slow:g} Hz "
                                f"needed for a new direction"
                                f"{'' if cand != self.known else ' or after a spin-down'}"
                                f"): {d.reason}")
             cand = None
         prev, self._prev_kind = self._prev_kind, cand
-        if cand in ("+", "-") and prev != cand:
+        if cand in TURNING and prev != cand:
             self._run_from = float(t_s)      # a new run of answers of this direction
-        if cand in ("+", "-") and cand == self.known and self._cand == "stopped" \
+        if cand in TURNING and cand == self.known and self._cand == "stopped" \
                 and prev != cand:
             # one answer of the old direction amid a stop's confirmation counts only once
             # the next decision says so too: new locks on a fan at rest claimed 0.12-0.13
             # Hz for one decision, twice, and each restarted the confirmation and renewed
             # the fan's last turning (a stop 3.4 s after rest in a simulated hour)
             return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
-                           confidence=min(d.confidence, 0.5),
+                           confidence=min(d.confidence, 0.5), turning=False,
                            reason=f"a lone answer {d.direction} amid a stop's "
                                   f"confirmation: {d.reason}"), []
-        self._watch_slowing(t_s, d)
-        if cand in ("+", "-") and (cand == self.known or self.known not in ("+", "-")):
+        self._watch_slowing(t_s, d, cand)
+        if cand in TURNING and (cand == self.known or self.known not in ("+", "-")):
             # only the known direction renews the cap of the wait for a reversal: a new
             # lock on a fan at rest claiming the other way for 0.2 s held a stop to 3.2 s
             if not (self._below_floor(t_s, cand)
@@ -211,10 +223,10 @@ class Transitions:
                 # cut the wait short, and a reversal at 0.08 Hz/s read as a stop and a
                 # start
                 self._last_turning, self._last_turning_hz = float(t_s), _rate(d)
-        if cand in ("+", "-"):
+        if cand in TURNING:
             if cand == self.known:
                 self._see_known(t_s, _rate(d))
-        elif cand == "stopped" and self.known in ("+", "-"):
+        elif cand == "stopped" and self.known in TURNING:
             self._see_known(t_s, 0.0)
         if cand is not None and cand != self._cand:
             self._cand = cand
@@ -239,7 +251,8 @@ class Transitions:
             if soonest is not None and t_s >= soonest:
                 soonest = None
             if self._cand_n < need or guard is not None or soonest is not None:
-                what = "a stop" if cand == "stopped" else f"turning {d.direction}"
+                what = ("a stop" if cand == "stopped" else "turning, direction in doubt"
+                        if cand == "~" else f"turning {d.direction}")
                 if guard is not None:
                     how = (f"slowing at {self._slowing_hz_s:.3f} Hz/s"
                            if self._line_zero(t_s) is not None else
@@ -255,12 +268,13 @@ class Transitions:
                 else:
                     why = f"confirming {what} ({min(self._cand_n, need)} of {need} pulses)"
                 return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
-                               confidence=min(d.confidence, 0.5),
+                               confidence=min(d.confidence, 0.5), turning=False,
                                reason=f"{why}: {d.reason}"), fired
             before = self.known
             self.known = cand
             self._known_seen = (float(t_s), _rate(d)) if cand != "stopped" else None
-            if before is not None:
+            if before is not None and not (before == "~" and cand in ("+", "-")):
+                # (a direction found for a fan already known to turn is no event)
                 kind = ("stopped" if cand == "stopped" else
                         "started" if before == "stopped" else "reversed")
                 ev = Event(kind, float(t_s), int(pulse), d.direction, d.rotation,
@@ -318,15 +332,14 @@ class Transitions:
             soonest = max(soonest, self._zero_by + rate / st.max_reversal_hz_s)
         return min(soonest, self._cand_t + st.reversal_hold_s)
 
-    def _watch_slowing(self, t_s: float, d: Decision) -> None:
+    def _watch_slowing(self, t_s: float, d: Decision, kind: str | None) -> None:
         """Remember when a fan seen slowing down steadily would reach zero: the line of
         the recent answers at rates the track follows well (three times the floor and
         up), extrapolated; such answers that no longer fall (the fan held or regained its
         speed) forget it. Slower answers change nothing: there the track lags and
         flattens (it read 0.13 Hz for a second while the fan went from 0.08 Hz to 0.04);
         nor do answers the other way before that way is confirmed."""
-        kind = _kind(d.direction)
-        if kind not in ("+", "-") or d.rate_hz is None or not math.isfinite(d.rate_hz):
+        if kind not in TURNING or d.rate_hz is None or not math.isfinite(d.rate_hz):
             return
         if self.known in ("+", "-") and kind != self.known:
             # the other way, not confirmed yet: a sign that the fan may be reversing, not
@@ -380,7 +393,7 @@ class Transitions:
         ``followed_s`` up to the last one. A faster fan would have been seen slowing, so
         its sudden quiet is a stop (an abrupt one) and is not held."""
         st = self.settings
-        if self.known not in ("+", "-"):
+        if self.known not in TURNING:
             return None
         zero_by, slowing = self._line_zero(t_s), self._slowing_hz_s
         if zero_by is None:

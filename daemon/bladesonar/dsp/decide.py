@@ -259,6 +259,10 @@ class Decision:
     seen_still: bool = False
     """A 'stopped' answer whose matches show the blade standing still in view (not only
     a quiet meter): no reversal through zero can be under way (transitions.py)."""
+    turning: bool = False
+    """The fan turns by this window's evidence, whichever way: set with a direction, and
+    on an ``unknown`` whose only doubt is the direction (a confident track well above
+    the floor, in doubt because its mirror image or an alias rate fits as well)."""
 
     def as_dict(self) -> dict[str, Any]:
         def r(v: float | None, n: int) -> float | None:
@@ -396,7 +400,7 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         # several alias rates fit about equally: the sign or the rate could be either
         conf = min(conf, s.min_confidence) * max(alias_gap, 0.0) / s.alias_margin
         return Decision("unknown", None, rel, rate_hz, rate_hz * 60.0, conf, alias_note,
-                        warnings)
+                        warnings, turning=moving)
     if alias_note:
         warnings.append(alias_note)
     if conf < s.min_confidence:
@@ -419,4 +423,4 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         rotation = ref_direction if same else ("ccw" if ref_direction == "cw" else "cw")
     return Decision(direction, rotation, rel, rate_hz, rate_hz * 60.0, conf,
                     f"relative rate {rel:+.4f} +- {rel_std:.4f}", warnings,
-                    rate_state=rate_state, rate_change_hz_s=change)
+                    rate_state=rate_state, rate_change_hz_s=change, turning=True)
