@@ -31,7 +31,8 @@ import numpy as np
 
 from ..analysis import REFERENCE_VERSION, Reference
 from ..errors import ReferenceFileError, ReferenceMissingError
-from .files import NotAFile, TooLarge, atomic_writer, human_bytes, one_line, read_capped, short_repr
+from ..text import human_bytes, one_line, short_repr
+from .files import NotAFile, TooLarge, atomic_writer, read_capped
 
 FORMAT = "bladesonar-reference"
 #: Container version: 2 adds ``file_format`` and ``sha256`` to the metadata. Files without

@@ -27,7 +27,8 @@ from typing import BinaryIO
 import numpy as np
 
 from ..errors import InputError
-from .files import AtomicFile, human_bytes
+from ..text import human_bytes
+from .files import AtomicFile
 
 log = logging.getLogger(__name__)
 
