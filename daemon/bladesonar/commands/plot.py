@@ -172,9 +172,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _cfg(args):
-    from .. import config
+    from ..io.config_file import load_config
 
-    return config.load(getattr(args, "config", None))
+    return load_config(getattr(args, "config", None))
 
 
 def _ref_gate(args, cfg):

@@ -121,8 +121,8 @@ def _scenes_dir(args, cfg):
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from .. import config
     from ..errors import ConfigError
+    from ..io.config_file import load_config
     from ..io.scene_file import load_scene
     from ..runtime_report import (
         aggregate,
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
         from ..plots import pyplot
 
         pyplot()  # a missing matplotlib is said before minutes of work
-    cfg = config.load(args.config)
+    cfg = load_config(args.config)
     grid = load_grid(args.grid) if args.grid else default_grid(args.quick)
     sdir = _scenes_dir(args, cfg)
     scenes = {name: load_scene(sdir / f"{name}.yaml") for name in grid.scenes}

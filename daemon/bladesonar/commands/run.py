@@ -72,8 +72,8 @@ def run(args: argparse.Namespace) -> int:
 
     import logging
 
-    from .. import config
     from ..errors import ConfigError, InputError
+    from ..io.config_file import load_config
     from ..live import LiveAnalyzer
     from ..service.backends import open_audio
     from ..service.logs import setup_logging
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     if args.seconds is not None and args.seconds <= 0:
         raise InputError(f"--seconds {args.seconds:g}: give a positive duration")
     try:
-        cfg = config.load(args.config)
+        cfg = load_config(args.config)
     except ConfigError as exc:
         # EX_CONFIG: the unit's RestartPreventExitStatus stops a restart loop on a bad file
         exc.exit_code = EXIT_CONFIG

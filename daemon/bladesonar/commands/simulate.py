@@ -160,11 +160,11 @@ def _output_options(p: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     import json
 
-    from .. import config
+    from ..io.config_file import load_config
     from ..io.scene_file import load_scene
     from ..io.truth import truth_path
 
-    cfg = config.load(args.config)
+    cfg = load_config(args.config)
     sim = _simulator(args, cfg, load_scene(args.scene))
     meta = sim.prepare(args.seconds)
     out = Path(args.out)
