@@ -26,7 +26,7 @@ from scipy import fft as sp_fft
 from scipy import optimize
 
 from .dsp import fingerprint as fp
-from .dsp.gate import Gate, delay_to_range, find_target_range, make_gate, max_gate_stop
+from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
 from .dsp.pulses import AlignedPulses, align
 from .dsp.rangedoppler import range_doppler
 from .errors import InputError
@@ -449,12 +449,6 @@ def path_ranges(scene, cfg, rate_hz: float, n_pulses: int, *, start_rad: float |
     cols = np.isin(tab.kind, kinds)
     r = np.where(tab.valid[:, cols], tab.length_m[:, cols] / 2.0, np.nan)
     return PathSeries(k, t, ang, r, tab.kind[cols])
-
-
-def range_of_delay(delay_samples: float, cfg) -> float:
-    """One-way range of a delay in samples (the picture axes' convention)."""
-    return float(delay_to_range(float(delay_samples), cfg.scene.speed_of_sound,
-                                cfg.audio.sample_rate))
 
 
 # --------------------------------------------------------------------------------------

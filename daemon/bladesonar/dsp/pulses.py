@@ -91,8 +91,6 @@ SILENT = 5      # digital silence over the whole gated window
 WARMUP = 6      # first pulses of a stream: no predecessor, so the reverberation that the
                 # previous pulse leaves in every later window (range ambiguity) is missing
 BURST = 7       # swamped by a burst of interference (speech, clatter): skipped, counted apart
-STATUS_NAMES = {OK: "ok", DROPOUT: "dropout", MISSING: "missing", NAN: "nan",
-                CLIPPED: "clipped", SILENT: "silent", WARMUP: "warmup", BURST: "burst"}
 
 
 def fractional_taps(frac: np.ndarray) -> np.ndarray:
