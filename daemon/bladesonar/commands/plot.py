@@ -8,6 +8,11 @@ from __future__ import annotations
 
 import argparse
 import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..config import Config
+    from ..dsp.gate import Gate
 
 #: Most rows and longest row `plot track` reads (memory bounded).
 MAX_ROWS = 500_000
@@ -177,7 +182,7 @@ def _cfg(args):
     return load_config(getattr(args, "config", None))
 
 
-def _ref_gate(args, cfg):
+def _ref_gate(args: argparse.Namespace, cfg: Config) -> Gate | None:
     if not getattr(args, "reference", None):
         return None
     from ..analysis import check_compatible

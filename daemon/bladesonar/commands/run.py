@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..analysis import Reference
+    from ..config import Config
 
 EPILOG = """\
 The daemon plays the pulse train and records through ALSA (audio.backend: alsa) or runs
@@ -40,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def load_reference_for(cfg):
+def load_reference_for(cfg: Config) -> Reference:
     """The daemon's reference, validated, checked against the running config, with the
     id of the bytes it was read from."""
     from ..analysis import check_compatible
