@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from bladesonar import config
+from bladesonar.io.config_file import load_config
 from loopback import RoomProcess, bladesonar_cmd, require_alsa, write_config
 
 pytestmark = [pytest.mark.alsa, pytest.mark.slow]
@@ -30,7 +31,7 @@ def test_capture_is_prf_locked_and_sample_exact(tmp_path, monkeypatch, period_pu
 
     cfg_path = write_config(tmp_path / "cfg.yaml", tmp_path / "state",
                             audio={"period_pulses": period_pulses})
-    cfg = config.load(cfg_path)
+    cfg = load_config(cfg_path)
     pri = cfg.waveform.pri_samples
     with RoomProcess(cfg_path, tmp_path / "room", "ccw:0.45:60", realtime=False) as room:
         monkeypatch.setenv("ALSA_CONFIG_PATH", room.env["ALSA_CONFIG_PATH"])

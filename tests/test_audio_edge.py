@@ -93,7 +93,7 @@ def test_decoder_flags_a_jump_in_the_capture_index():
 
 def test_unknown_backend_is_a_clear_error():
     cfg = config.from_mapping({})
-    # past validation on purpose (config.load refuses it earlier, naming the key)
+    # past validation on purpose (load_config refuses it earlier, naming the key)
     bad = dataclasses.replace(cfg, audio=dataclasses.replace(cfg.audio, backend="pulse"))
     with pytest.raises(AudioDeviceError, match="alsa or sim"):
         open_audio(bad)

@@ -9,6 +9,7 @@ import pytest
 
 from bladesonar import config
 from bladesonar.errors import ConfigError
+from bladesonar.io.config_file import load_config
 
 
 @pytest.mark.parametrize("data, key, words", [
@@ -56,7 +57,7 @@ def test_file_errors_carry_the_line_number(tmp_path):
     p = tmp_path / "c.yaml"
     p.write_text("audio:\n  sample_rate: 44100\nscene:\n  blades: 40\n")
     with pytest.raises(ConfigError) as ei:
-        config.load(p)
+        load_config(p)
     assert ei.value.line == 4
     assert str(ei.value).startswith(f"{p}:4: scene.blades = 40")
 
@@ -64,7 +65,7 @@ def test_file_errors_carry_the_line_number(tmp_path):
 def test_shared_sample_config_loads():
     from conftest import require_shared_sample
 
-    cfg = config.load(require_shared_sample() / "config.yaml")
+    cfg = load_config(require_shared_sample() / "config.yaml")
     assert (cfg.scene.gate_start_m, cfg.scene.gate_stop_m, cfg.scene.blades) == (1.0, 4.5, 4)
 
 
@@ -91,7 +92,7 @@ def test_example_config_documents_every_key_with_its_default(repo_root):
     import yaml
 
     path = repo_root / "config" / "bladesonar.example.yaml"
-    loaded = config.load(path)
+    loaded = load_config(path)
     assert config.to_mapping(loaded) == config.to_mapping(config.Config())
     data = yaml.safe_load(path.read_text())
     for key, _ in config.iter_fields():

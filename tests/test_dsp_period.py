@@ -72,6 +72,27 @@ def test_too_few_periods_are_refused():
         estimate_period(y, features=f, min_periods=6)
 
 
+def _step_or_alternation(n: int, kind: str) -> np.ndarray:
+    """Pulses whose echo pattern is one of two: switching once at pulse 220 (a WAV whose
+    data change sample rate there, as a fuzzed file did at sample 286231 = 220.7 PRIs),
+    or every other pulse; mean removed, a little noise."""
+    rng = np.random.default_rng(3)
+    a, b = rng.standard_normal(40), rng.standard_normal(40)
+    second = np.arange(n) >= 220 if kind == "step" else np.arange(n) % 2 == 1
+    y = np.where(second[:, None], b, a) + 0.01 * rng.standard_normal((n, 40))
+    return y - y.mean(axis=0)
+
+
+@pytest.mark.parametrize("kind", ["step", "alternation"])
+def test_echoes_that_change_instead_of_turning_are_refused(kind):
+    """A step's spectrum only falls from zero doppler and an alternation's sits at half
+    the PRF: neither has a peak a fan makes, so no rate is a candidate. That is a clear
+    EstimationError (it was numpy's "zero-size array to reduction operation maximum")."""
+    y = _step_or_alternation(808, kind)
+    with pytest.raises(EstimationError, match="changed during the recording"):
+        estimate_period(y)
+
+
 def test_range_doppler_puts_a_modulated_sample_at_its_doppler_and_delay():
     from bladesonar.dsp.rangedoppler import range_doppler
     prf, n = 34.0, 256

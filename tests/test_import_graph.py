@@ -1,6 +1,7 @@
-"""The import graph has no circle and no arrow back up: pure computation never imports
-the edges (files, devices, MQTT, commands, plots), and nothing imports in a circle,
-function-level (lazy) imports included."""
+"""The import graph has no circle and no arrow back up, function-level (lazy) imports
+included. Every module belongs to one layer; a module imports only from its own layer or
+lower ones, so pure computation never reaches a file, a device, MQTT or the command line,
+and a new module must be given a layer here before the suite passes."""
 
 from __future__ import annotations
 
@@ -8,12 +9,21 @@ import ast
 from pathlib import Path
 
 PKG = "bladesonar"
-#: modules of pure computation (no I/O) and the edges they must never import
-PURE = ("bladesonar.waveform", "bladesonar.dsp", "bladesonar.sim", "bladesonar.analysis",
-        "bladesonar.schema", "bladesonar.transitions", "bladesonar.live",
-        "bladesonar.imaging", "bladesonar.reference_fit")
-EDGES = ("bladesonar.io", "bladesonar.service", "bladesonar.commands", "bladesonar.plots",
-         "bladesonar.loopback", "bladesonar.cli")
+#: The layers, lowest first: (name, the modules and packages in it). ``bladesonar``
+#: alone is the package's ``__init__`` (its version); a package name covers its modules.
+LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("ground", ("bladesonar", "bladesonar.text", "bladesonar.errors", "bladesonar.schema")),
+    ("settings", ("bladesonar.config", "bladesonar.config_doc")),
+    ("computation", ("bladesonar.waveform", "bladesonar.dsp", "bladesonar.sim",
+                     "bladesonar.imaging", "bladesonar.reference_fit")),
+    ("analysis", ("bladesonar.analysis", "bladesonar.transitions", "bladesonar.live",
+                  "bladesonar.runtime_report", "bladesonar.report_text")),
+    ("io", ("bladesonar.io",)),
+    ("edges", ("bladesonar.service", "bladesonar.plots", "bladesonar.loopback",
+               "bladesonar.progress")),
+    ("commands", ("bladesonar.commands",)),
+    ("cli", ("bladesonar.cli", "bladesonar.__main__")),
+)
 
 
 def _modules(root: Path) -> dict[str, Path]:
@@ -52,47 +62,93 @@ def _graph(repo_root: Path) -> dict[str, set[str]]:
     return {m: _imports(m, p, mods) for m, p in mods.items()}
 
 
-def _in(name: str, group: tuple[str, ...]) -> bool:
-    return any(name == g or name.startswith(g + ".") for g in group)
+def layer_of(name: str, layers=LAYERS) -> int | None:
+    """Index of ``name``'s layer (the longest listed prefix that covers it), or None."""
+    best: tuple[int, int] | None = None
+    for i, (_, groups) in enumerate(layers):
+        for g in groups:
+            covers = name == g or (g != PKG and name.startswith(g + "."))
+            if covers and (best is None or len(g) > best[1]):
+                best = (i, len(g))
+    return None if best is None else best[0]
 
 
-def test_pure_computation_never_imports_an_edge(repo_root):
-    g = _graph(repo_root)
-    bad = sorted((m, t) for m, ts in g.items() if _in(m, PURE) for t in ts if _in(t, EDGES))
-    assert not bad, bad
+def upward_imports(g: dict[str, set[str]], layers=LAYERS) -> list[str]:
+    """Each import from a lower layer into a higher one, as 'a (layer) -> b (layer)'."""
+    names = [n for n, _ in layers]
+    bad = []
+    for m, targets in sorted(g.items()):
+        lm = layer_of(m, layers)
+        for t in sorted(targets):
+            lt = layer_of(t, layers)
+            if lm is not None and lt is not None and lt > lm:
+                bad.append(f"{m} ({names[lm]}) -> {t} ({names[lt]})")
+    return bad
 
 
-def test_no_import_circles(repo_root):
-    g = _graph(repo_root)
-    # Tarjan's strongly connected components: any with more than one module is a circle
+def circles(g: dict[str, set[str]]) -> list[list[str]]:
+    """The import circles: Tarjan's strongly connected components of more than one
+    module (iterative, so a deep graph cannot hit the recursion limit)."""
     index: dict[str, int] = {}
     low: dict[str, int] = {}
     stack: list[str] = []
     on: set[str] = set()
     comps: list[list[str]] = []
+    for root in sorted(g):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(g[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on.add(root)
+        while work:
+            v, it = work[-1]
+            w = next(it, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(sorted(g.get(w, ())))))
+                elif w in on:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                comp = []
+                while True:
+                    x = stack.pop()
+                    on.discard(x)
+                    comp.append(x)
+                    if x == v:
+                        break
+                if len(comp) > 1:
+                    comps.append(sorted(comp))
+    return comps
 
-    def visit(v):
-        index[v] = low[v] = len(index)
-        stack.append(v)
-        on.add(v)
-        for w in g[v]:
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            comp = []
-            while True:
-                w = stack.pop()
-                on.discard(w)
-                comp.append(w)
-                if w == v:
-                    break
-            comps.append(comp)
 
-    for v in sorted(g):
-        if v not in index:
-            visit(v)
-    circles = [sorted(c) for c in comps if len(c) > 1]
-    assert not circles, circles
+def test_every_module_has_a_layer(repo_root):
+    missing = sorted(m for m in _graph(repo_root) if layer_of(m) is None)
+    assert not missing, f"give these modules a layer in LAYERS: {missing}"
+
+
+def test_no_import_runs_from_a_lower_layer_up(repo_root):
+    bad = upward_imports(_graph(repo_root))
+    assert not bad, bad
+
+
+def test_no_import_circles(repo_root):
+    found = circles(_graph(repo_root))
+    assert not found, found
+
+
+def test_the_checks_find_what_they_look_for():
+    """The two checks on a small graph with one arrow back up and one circle."""
+    layers = (("low", ("p.a", "p.b")), ("high", ("p.c",)))
+    g = {"p.a": {"p.b"}, "p.b": {"p.a", "p.c"}, "p.c": {"p.a"}}
+    assert upward_imports(g, layers) == ["p.b (low) -> p.c (high)"]
+    assert circles(g) == [["p.a", "p.b", "p.c"]]
+    assert circles({"p.a": {"p.b"}, "p.b": set(), "p.c": {"p.a", "p.b"}}) == []
+    assert layer_of("p.d", layers) is None

@@ -7,6 +7,7 @@ import pytest
 
 from bladesonar import config
 from bladesonar.analysis import analyze, build_reference
+from bladesonar.io.config_file import load_config
 from bladesonar.io.wav import read_wav
 from bladesonar.live import LiveAnalyzer
 from conftest import require_shared_sample
@@ -17,7 +18,7 @@ pytestmark = pytest.mark.slow   # whole recordings, daemon path against offline
 @pytest.fixture(scope="module")
 def sample():
     SAMPLE = require_shared_sample()
-    cfg = config.load(SAMPLE / "config.yaml")
+    cfg = load_config(SAMPLE / "config.yaml")
     ref_x, _ = read_wav(SAMPLE / "reference.wav", expect_rate=cfg.audio.sample_rate)
     probe, _ = read_wav(SAMPLE / "probe.wav", expect_rate=cfg.audio.sample_rate)
     return cfg, build_reference(ref_x, cfg, "ccw"), probe

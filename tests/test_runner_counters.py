@@ -13,8 +13,8 @@ import time
 
 import pytest
 
-from bladesonar import config
 from bladesonar.analysis import build_reference
+from bladesonar.io.config_file import load_config
 from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer
 from bladesonar.service.backends import open_audio
@@ -71,7 +71,7 @@ def _start_service(tmp_path, sections):
     """The service on the sim backend in a thread, with a collecting publisher and a
     reference from 12 s of the same scene: (service, config path, publishers, thread)."""
     cfg_path = write_config(tmp_path / "cfg.yaml", tmp_path, **sections)
-    cfg = config.load(cfg_path)
+    cfg = load_config(cfg_path)
     x, _ = simulate(load_scene(SCENE), cfg, 12.0, schedule="ccw:0.45:12", seed=2,
                     snr_db=20.0)
     ref = build_reference(x, cfg, "ccw")

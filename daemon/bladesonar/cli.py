@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
 import os
 import sys
 
 from . import __version__
-from .commands import COMMANDS
+from .commands import analyze, check_config, plot, reference, report, room, run, simulate
 from .errors import BladesonarError
+
+#: The subcommands, in the order ``bladesonar --help`` lists them.
+COMMANDS = (simulate, reference, analyze, plot, report, run, room, check_config)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -21,14 +23,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"bladesonar {__version__}")
     parser.add_argument("--debug", action="store_true", help="verbose logging")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
-        try:
-            mod = importlib.import_module(f".commands.{name}", __package__)
-        except ModuleNotFoundError as exc:
-            if exc.name and exc.name.endswith(f"commands.{name}"):
-                continue  # command not built yet
-            raise
-        mod.register(sub)
+    for command in COMMANDS:
+        command.register(sub)
     return parser
 
 

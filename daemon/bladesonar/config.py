@@ -356,19 +356,6 @@ def to_mapping(cfg: Any) -> dict[str, Any]:
     return data
 
 
-def load(path: str | Path | None) -> Config:
-    """Read and validate a YAML config file; None gives the defaults. The file is read
-    and parsed with hard limits (size, UTF-8, no aliases, depth): io/safe_yaml.py."""
-    if path is None:
-        return Config()
-    from .io.safe_yaml import load_yaml_file
-
-    p = Path(path)
-    data, lines = load_yaml_file(p, key="--config")
-    cfg = from_mapping(data, source=str(p), lines=lines)
-    return dataclasses.replace(cfg, base_dir=str(p.resolve().parent))
-
-
 def iter_fields(cls: type = Config, prefix: str = ""):
     """Yield (dotted key, field) for every leaf setting: drives docs and the example file."""
     for f in fields_of(cls).values():

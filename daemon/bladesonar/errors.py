@@ -6,6 +6,8 @@ anything else is a bug and keeps its traceback.
 
 from __future__ import annotations
 
+from .text import short_repr
+
 
 class BladesonarError(Exception):
     """Base class: a problem with the user's input, configuration or environment."""
@@ -25,9 +27,8 @@ class ConfigError(BladesonarError):
         if source:
             source = _printable(str(source), 4096)
             where = f"{source}:{line}: " if line else f"{source}: "
-        from .io.files import short_repr  # reprs are bounded: a value may be huge
-
-        # the file named by --config/--scene/<yaml> is kept whole (up to PATH_MAX)
+        # a value's repr is bounded (it may be huge); a file named by --config, --scene,
+        # --out or <yaml> is shown whole (up to PATH_MAX)
         limit = 4096 if key in ("--config", "--scene", "--out", "<yaml>") else 80
         super().__init__(f"{where}{key} = {short_repr(value, limit)}: {allowed}")
 

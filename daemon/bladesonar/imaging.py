@@ -20,16 +20,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import fft as sp_fft
 from scipy import optimize
 
 from .dsp import fingerprint as fp
-from .dsp.gate import Gate, delay_to_range, find_target_range, make_gate, max_gate_stop
+from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
 from .dsp.pulses import AlignedPulses, align
 from .dsp.rangedoppler import range_doppler
 from .errors import InputError
+
+if TYPE_CHECKING:
+    from .config import Config
+    from .sim.scene import Scene
 
 RANGE_LABEL = "one-way range (m) = c·delay/2 from the direct-coupling edge"
 
@@ -38,13 +43,13 @@ RANGE_LABEL = "one-way range (m) = c·delay/2 from the direct-coupling edge"
 # Pulses and gate
 
 
-def full_gate(cfg) -> Gate:
+def full_gate(cfg: Config) -> Gate:
     """Every usable delay of a PRI (0 .. one PRI less the guard)."""
     return Gate(0, max_gate_stop(cfg.waveform.pri_samples), float(cfg.audio.sample_rate),
                 float(cfg.scene.speed_of_sound))
 
 
-def aligned(x: np.ndarray, cfg, gate: Gate | None = None) -> AlignedPulses:
+def aligned(x: np.ndarray, cfg: Config, gate: Gate | None = None) -> AlignedPulses:
     """Aligned pulses of a recording over ``gate`` (default: the whole PRI)."""
     return align(np.asarray(x, dtype=np.float64), cfg.waveform.pri_samples,
                  gate or full_gate(cfg))
@@ -62,7 +67,7 @@ def valid_pulses(ap: AlignedPulses, max_pulses: int | None = None, start: int = 
     return ap.pulses[v], ap.edges[v]
 
 
-def pipeline_gate(cfg, power: np.ndarray | None = None, ref_gate: Gate | None = None
+def pipeline_gate(cfg: Config, power: np.ndarray | None = None, ref_gate: Gate | None = None
                   ) -> tuple[Gate, float | None]:
     """The gate the pipeline would use: the reference's, the config's, or (both null) from
     the first rising moving energy of ``power`` (dsp.gate.find_target_range) less
@@ -119,8 +124,8 @@ class RDMap:
         return float(self.doppler_hz[i]), float(self.range_m[j])
 
 
-def rd_map(x: np.ndarray, cfg, *, max_pulses: int | None = None, ref_gate: Gate | None = None,
-           window: str | None = "hann", pad: int = 1) -> RDMap:
+def rd_map(x: np.ndarray, cfg: Config, *, max_pulses: int | None = None,
+           ref_gate: Gate | None = None, window: str | None = "hann", pad: int = 1) -> RDMap:
     """Range-doppler map over the whole PRI: DFT along pulses (dsp.rangedoppler), static
     part removed, in dB; the pipeline's gate for marking it."""
     ap = aligned(x, cfg)
@@ -314,7 +319,7 @@ def rotation_match(a: IsarImage, b: IsarImage, *, r_lo: float = 0.0, r_hi: float
 # Pulse-to-pulse matching distance
 
 
-def features(pulses: np.ndarray, cfg) -> np.ndarray:
+def features(pulses: np.ndarray, cfg: Config) -> np.ndarray:
     """The pipeline's match vectors of gated pulses, the recording's own mean pulse (its
     static room) removed first."""
     p = np.asarray(pulses, dtype=np.float64)
@@ -431,8 +436,9 @@ class PathSeries:
     kind: np.ndarray
 
 
-def path_ranges(scene, cfg, rate_hz: float, n_pulses: int, *, start_rad: float | None = None,
-                kinds: tuple[str, ...] = ("wall_blade",)) -> PathSeries:
+def path_ranges(scene: Scene, cfg: Config, rate_hz: float, n_pulses: int, *,
+                start_rad: float | None = None, kinds: tuple[str, ...] = ("wall_blade",)
+                ) -> PathSeries:
     """Ranges of the scene's fan paths at each pulse for a constant signed rate (+ = ccw).
 
     ``wall_blade`` and ``blade_wall`` have equal lengths (the same route both ways), so the
@@ -449,12 +455,6 @@ def path_ranges(scene, cfg, rate_hz: float, n_pulses: int, *, start_rad: float |
     cols = np.isin(tab.kind, kinds)
     r = np.where(tab.valid[:, cols], tab.length_m[:, cols] / 2.0, np.nan)
     return PathSeries(k, t, ang, r, tab.kind[cols])
-
-
-def range_of_delay(delay_samples: float, cfg) -> float:
-    """One-way range of a delay in samples (the picture axes' convention)."""
-    return float(delay_to_range(float(delay_samples), cfg.scene.speed_of_sound,
-                                cfg.audio.sample_rate))
 
 
 # --------------------------------------------------------------------------------------

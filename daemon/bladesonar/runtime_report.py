@@ -225,8 +225,8 @@ def _schedule(rate_hz: float, seconds: float) -> str:
     return f"{'ccw' if rate_hz > 0 else 'cw'}:{abs(rate_hz)}:{seconds}"
 
 
-def _render(scene, cfg, schedule: str, seconds: float, seed: int, drift_ppm: float = 0.0
-            ) -> tuple[np.ndarray, np.ndarray, float]:
+def _render(scene, cfg: _config.Config, schedule: str, seconds: float, seed: int,
+            drift_ppm: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
     """(clean, unit noise, fan power) of one run: the simulator's noise for seed, scaled to
     sigma = 1, and the power its SNR refers to (so x = clean + sqrt(P / 10^(snr/10)) n)."""
     def run(snr):
@@ -253,7 +253,8 @@ def _truth_direction(ratio: float, rate_hz: float, alias_hz: float) -> str:
     return "ccw" if ratio > 0 else "cw"
 
 
-def _one(x: np.ndarray, cfg, ref: Reference) -> tuple[dict[str, Any] | None, float, str]:
+def _one(x: np.ndarray, cfg: _config.Config, ref: Reference
+         ) -> tuple[dict[str, Any] | None, float, str]:
     t0 = time.process_time()
     try:
         s, _ = analyze(x, cfg, ref)
@@ -386,7 +387,7 @@ def _run_reversal(job: Job, sc, base, ref: Reference, grid: Grid) -> list[dict[s
     return out
 
 
-def _tracked(x: np.ndarray, cfg, ref: Reference) -> tuple[list[dict], float]:
+def _tracked(x: np.ndarray, cfg: _config.Config, ref: Reference) -> tuple[list[dict], float]:
     """The per-pulse rows of ``analyze(track=True)`` (none if it refuses) and its CPU time."""
     t0 = time.process_time()
     try:

@@ -12,8 +12,12 @@ only sample; a Hann pulse of N samples peaks (N - 1) / 2 samples later.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .config import Config
 
 #: Taps on each side of the fractional-delay kernel (2 * HALF_TAPS taps in all).
 HALF_TAPS = 16
@@ -59,7 +63,7 @@ def pulse_shape(kind: str, n_samples: int = 1) -> np.ndarray:
     raise ValueError(f"pulse kind must be 'impulse' or 'hann', got {kind!r}")
 
 
-def cfg_pulse(cfg) -> np.ndarray:
+def cfg_pulse(cfg: Config) -> np.ndarray:
     """The configured pulse shape (unit peak); amplitude is applied by the caller."""
     return pulse_shape(cfg.waveform.pulse, cfg.waveform.pulse_samples)
 
@@ -126,7 +130,7 @@ def render(idx: np.ndarray, w: np.ndarray, start: int, n: int) -> np.ndarray:
     return np.bincount(i[keep], weights=v[keep], minlength=n).astype(np.float64)
 
 
-def pulse_train_chunk(start_sample: int, n: int, cfg) -> np.ndarray:
+def pulse_train_chunk(start_sample: int, n: int, cfg: Config) -> np.ndarray:
     """Transmit samples [start_sample, start_sample + n): pulse k starts at k * pri_samples.
 
     Stateless: the daemon's playback thread asks for consecutive chunks and gets the same
@@ -150,6 +154,6 @@ def pulse_train_chunk(start_sample: int, n: int, cfg) -> np.ndarray:
     return out
 
 
-def pulse_train(n_samples: int, cfg) -> np.ndarray:
+def pulse_train(n_samples: int, cfg: Config) -> np.ndarray:
     """The first ``n_samples`` of the transmit signal (pulse 0 at sample 0)."""
     return pulse_train_chunk(0, n_samples, cfg)

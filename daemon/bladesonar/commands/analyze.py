@@ -39,12 +39,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import config
     from ..analysis import analyze
+    from ..io.config_file import load_config
     from ..io.reference import load_reference
     from ..io.wav import stream_wav
 
-    cfg = config.load(args.config)
+    cfg = load_config(args.config)
     ref = load_reference(args.reference)
     # read in blocks: memory independent of the recording's length (rows aside)
     with stream_wav(args.wav, expect_rate=cfg.audio.sample_rate) as blocks:

@@ -14,9 +14,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import config
+    from ..io.config_file import load_config
 
-    cfg = config.load(args.config)
+    cfg = load_config(args.config)
     print(f"{args.config}: ok (device_id={cfg.device_id}, backend={cfg.audio.backend}, "
           f"PRF {cfg.prf_hz:.4f} Hz, max range {cfg.max_range_m:.2f} m)")
     return 0

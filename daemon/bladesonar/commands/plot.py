@@ -8,6 +8,11 @@ from __future__ import annotations
 
 import argparse
 import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..config import Config
+    from ..dsp.gate import Gate
 
 #: Most rows and longest row `plot track` reads (memory bounded).
 MAX_ROWS = 500_000
@@ -172,12 +177,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _cfg(args):
-    from .. import config
+    from ..io.config_file import load_config
 
-    return config.load(getattr(args, "config", None))
+    return load_config(getattr(args, "config", None))
 
 
-def _ref_gate(args, cfg):
+def _ref_gate(args: argparse.Namespace, cfg: Config) -> Gate | None:
     if not getattr(args, "reference", None):
         return None
     from ..analysis import check_compatible

@@ -48,13 +48,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import config
     from ..analysis import build_reference
     from ..errors import InputError
+    from ..io.config_file import load_config
     from ..io.reference import save_reference
     from ..io.wav import read_wav
 
-    cfg = config.load(args.config)
+    cfg = load_config(args.config)
     if args.live:
         if args.wav:
             raise InputError(f"give either --live or a recording ({args.wav}), not both")

@@ -12,7 +12,11 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ..config import Config
+    from ..runtime_report import Grid
 
 EPILOG = """\
 The full sweep (observation window 0.25-30 s, SNR -5..30 dB, rate ratios 0..9, 3-5 blades,
@@ -109,7 +113,7 @@ def load_grid(path: str):
                           "'bladesonar report --help'") from exc
 
 
-def _scenes_dir(args, cfg):
+def _scenes_dir(args: argparse.Namespace, cfg: Config) -> Path:
     if args.scenes:
         return Path(args.scenes)
     mine = cfg.path("scenes")
@@ -121,8 +125,8 @@ def _scenes_dir(args, cfg):
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from .. import config
     from ..errors import ConfigError
+    from ..io.config_file import load_config
     from ..io.scene_file import load_scene
     from ..runtime_report import (
         aggregate,
@@ -140,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
         from ..plots import pyplot
 
         pyplot()  # a missing matplotlib is said before minutes of work
-    cfg = config.load(args.config)
+    cfg = load_config(args.config)
     grid = load_grid(args.grid) if args.grid else default_grid(args.quick)
     sdir = _scenes_dir(args, cfg)
     scenes = {name: load_scene(sdir / f"{name}.yaml") for name in grid.scenes}
@@ -201,7 +205,7 @@ def _sweep(n_jobs: int, state: dict[str, Any]) -> tuple[dict[str, Any], list[dic
     return ref_info, records, time.perf_counter() - t_wall
 
 
-def _meta(args: argparse.Namespace, cfg: Any, grid: Any, records: list[dict[str, Any]],
+def _meta(args: argparse.Namespace, cfg: Config, grid: Grid, records: list[dict[str, Any]],
           wall: float) -> dict[str, Any]:
     """How the report was made: the command, the machine, the costs, the grid's settings."""
     import datetime

@@ -55,11 +55,11 @@ def run(args: argparse.Namespace) -> int:
     import sys
     from pathlib import Path
 
-    from .. import config
+    from ..io.config_file import load_config
     from ..io.scene_file import load_scene
     from ..loopback import CAP_PCM, PLAY_PCM, Room, write_alsa_config
 
-    cfg = config.load(args.config)
+    cfg = load_config(args.config)
     scene = load_scene(args.scene or cfg.path(cfg.sim.scene))
     d = Path(args.dir)
     d.mkdir(parents=True, exist_ok=True)

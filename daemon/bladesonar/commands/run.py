@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..analysis import Reference
+    from ..config import Config
 
 EPILOG = """\
 The daemon plays the pulse train and records through ALSA (audio.backend: alsa) or runs
@@ -40,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def load_reference_for(cfg):
+def load_reference_for(cfg: Config) -> Reference:
     """The daemon's reference, validated, checked against the running config, with the
     id of the bytes it was read from."""
     from ..analysis import check_compatible
@@ -72,8 +77,8 @@ def run(args: argparse.Namespace) -> int:
 
     import logging
 
-    from .. import config
     from ..errors import ConfigError, InputError
+    from ..io.config_file import load_config
     from ..live import LiveAnalyzer
     from ..service.backends import open_audio
     from ..service.logs import setup_logging
@@ -85,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     if args.seconds is not None and args.seconds <= 0:
         raise InputError(f"--seconds {args.seconds:g}: give a positive duration")
     try:
-        cfg = config.load(args.config)
+        cfg = load_config(args.config)
     except ConfigError as exc:
         # EX_CONFIG: the unit's RestartPreventExitStatus stops a restart loop on a bad file
         exc.exit_code = EXIT_CONFIG

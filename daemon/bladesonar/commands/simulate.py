@@ -10,7 +10,12 @@ import argparse
 import logging
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ..config import Config
+    from ..sim.render import Simulator
+    from ..sim.scene import Scene
 
 EPILOG = """\
 conventions:
@@ -160,11 +165,11 @@ def _output_options(p: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     import json
 
-    from .. import config
+    from ..io.config_file import load_config
     from ..io.scene_file import load_scene
     from ..io.truth import truth_path
 
-    cfg = config.load(args.config)
+    cfg = load_config(args.config)
     sim = _simulator(args, cfg, load_scene(args.scene))
     meta = sim.prepare(args.seconds)
     out = Path(args.out)
@@ -178,7 +183,7 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _simulator(args: argparse.Namespace, cfg: Any, scene: Any) -> Any:
+def _simulator(args: argparse.Namespace, cfg: Config, scene: Scene) -> Simulator:
     """The simulator the options describe (rotation, noise, impairments), checked against
     each other and the config."""
     import dataclasses
@@ -217,7 +222,7 @@ def _simulator(args: argparse.Namespace, cfg: Any, scene: Any) -> Any:
                      wall_bounces=not args.no_wall_bounces, include_paths=not args.no_paths)
 
 
-def _write_recording(args: argparse.Namespace, cfg: Any, sim: Any, meta: dict[str, Any],
+def _write_recording(args: argparse.Namespace, cfg: Config, sim: Simulator, meta: dict[str, Any],
                      out: Path) -> tuple[Any, Any]:
     """The WAV and its truth sidecar, rendered chunk by chunk; both appear only when
     complete. Returns the closed writers (their counts)."""

@@ -203,6 +203,14 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
             f"need {line_snr_min:g}x): the target seems stationary. Record the reference "
             "while the fan turns")
     candidates = lines.candidate_rates(max(min_periods / n, 1.0 / n), max_harmonic)
+    if not len(candidates):
+        raise EstimationError(
+            f"the strongest doppler line, at {lines.nu[lines.strongest]:.3f} cycles per "
+            "pulse, is no peak a turning fan makes (the spectrum only falls from zero "
+            "doppler or rises to half the PRF): the echoes changed during the recording "
+            "instead of turning (a moved sensor, a gain step, or data whose format or "
+            "sample rate changes part-way). Record the reference again, the fan turning "
+            "steadily and nothing else changing")
     rows = np.any(y != 0.0, axis=1)
     folds = PhaseFolds(principal_series(y[rows]), np.asarray(k)[rows],
                        span=float(np.max(k) - np.min(k) + 1))

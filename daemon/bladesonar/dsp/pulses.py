@@ -104,8 +104,6 @@ SILENT = 5      # digital silence over the whole gated window
 WARMUP = 6      # first pulses of a stream: no predecessor, so the reverberation that the
                 # previous pulse leaves in every later window (range ambiguity) is missing
 BURST = 7       # swamped by a burst of interference (speech, clatter): skipped, counted apart
-STATUS_NAMES = {OK: "ok", DROPOUT: "dropout", MISSING: "missing", NAN: "nan",
-                CLIPPED: "clipped", SILENT: "silent", WARMUP: "warmup", BURST: "burst"}
 
 
 def fractional_taps(frac: np.ndarray) -> np.ndarray:
@@ -126,13 +124,13 @@ def fractional_taps(frac: np.ndarray) -> np.ndarray:
 
 
 #: Band (fraction of the Nyquist frequency) of the interpolant that times the direct
-#: coupling. A full-band one read a full-band coupling's peak 0.023 sample rms off the
+#: coupling. A full-band one reads a full-band coupling's peak 0.023 sample rms off the
 #: schedule's line at any SNR, a function of the sub-sample position: its sum over the
 #: sample grid aliases at the band edge. Under clock drift that position turns every
 #: 1 / (drift * PRI) pulses, and the error, times the strong static echoes, is a change
-#: that repeats like a turning fan's: at 40 dB a fan at rest was never called stopped.
+#: that repeats like a turning fan's, so a fan at rest would look as if it turned.
 #: Below 0.7 of Nyquist (simulated, 10-100 ppm): 2e-6 sample rms at 80 dB, 0.0013 at
-#: 10 dB (0.023 before), 0.004 at 0 dB (tests/test_dsp_pulses.py).
+#: 10 dB, 0.004 at 0 dB (tests/test_dsp_pulses.py).
 EDGE_BAND = 0.7
 _GRID = np.arange(-1.0, 1.0 + _EDGE_GRID / 2, _EDGE_GRID)
 #: offsets of the samples an edge or a tail sample is read from, about its nearest one
@@ -143,9 +141,9 @@ _GRID_W = kernel(_GRID[:, None] - _TAPS[None, :], EDGE_BAND)
 #: How far before the strongest arrival of the first PRIs the direct coupling is looked for,
 #: samples (1 m one-way at 44.1 kHz), and how strong an earlier arrival must be to be it.
 #: The coupling is the first arrival, but not always the strongest sample: a full-band one
-#: half a sample off the grid peaks at 0.64 of its height, and a wall 0.46 m behind a
-#: sensor whose coupling is weak (gain 1) returned 0.79 of it on the grid: the aligner
-#: cut every pulse at that echo, 118 samples late (a random scene).
+#: half a sample off the grid peaks at 0.64 of its height, while a wall close behind a
+#: sensor whose coupling is weak can return nearly as much on the grid (0.79 of it from
+#: 0.46 m in a random scene), and cutting the pulses at that echo puts every one late.
 FIRST_ARRIVAL_LOOKBACK = 257
 FIRST_ARRIVAL_SHARE = 0.5
 
@@ -239,7 +237,7 @@ def _tail_offset(shifts: tuple[np.ndarray, np.ndarray, np.ndarray], seg: np.ndar
         near, rows = near[clean], rows[:, clean]
         norms = np.sqrt(np.einsum("gj,gj->g", rows, rows))
     # the segment through the same interpolant unshifted: both band-limited alike (a
-    # full-band tail against a band-limited one kept a third of the bias)
+    # full-band tail against a band-limited one keeps a third of the bias)
     y = near @ _TAIL_W0
     r = rows @ y / norms
     g = int(np.argmax(r))
@@ -529,8 +527,7 @@ class PulseAligner:
         # a coupling like the first one: about as loud and of its shape. Within a factor
         # of 4 in energy: an AGC moves it by a few dB, and a clipped full-band click
         # that does not ring (the simulator's ideal speaker 12 dB over full scale) by up
-        # to about 4 with its sub-sample position (within 2, a third of its pulses were
-        # lost under clock drift)
+        # to about 4 with its sub-sample position, which clock drift sweeps through
         if not (et > 0 and 0.25 * et <= ew <= 4.0 * et) or \
                 r[i] < TEMPLATE_MIN_CORR * math.sqrt(ew * et):
             return None
@@ -553,8 +550,8 @@ class PulseAligner:
         the prediction's nearest sample, then :func:`refine_peak`): {that sample:
         (position, height)}. The predictions step by the current PRI from ``first``; the
         loop's own, corrected pulse by pulse, falls on the same sample but rarely, and
-        then measures it alone. One pulse at a time this was a sixth of the daemon's
-        CPU."""
+        then measures it alone. Measured one pulse at a time, the edges cost a sixth
+        of the daemon's CPU."""
         n = int((self._end - KERNEL_HALF - self.search - 2 - first) // self._period)
         if n < 2 or self._template is not None:
             return {}

@@ -40,11 +40,10 @@ import numpy as np
 #: Pulses over which the track and the rate follower are compared (forgetting).
 FOLLOW_MEMORY = 24.0
 #: Follower weight above which the track takes the follower's line for a match only the
-#: follower expects (Tracker._follower_takes). Not the 1/2 at which the follower's rate
-#: is reported: near rest the follower carries a spin-down's deceleration through zero,
-#: and a track taking its line there went on to -0.3 Hz with the fan at rest (a false
-#: 'reversed'); just after a lock the larger uncertainty it takes with the line had the
-#: alias check move a right track to its mirror (a reversal confirmed 2.7 s late).
+#: follower expects (Tracker._follower_takes). Higher than the 1/2 at which the
+#: follower's rate is reported: near rest the follower can carry a spin-down's
+#: deceleration through zero, and just after a lock it is the less certain line, so the
+#: track follows it only when the matches clearly favour it (docs/dynamics.md, History).
 SYNC_WEIGHT = 0.9
 #: Clear matches (quality min_info or more) the track must have rejected among the recent
 #: ones before it is re-checked (Tracker.recheck).
@@ -53,20 +52,20 @@ RECHECK_REJECTED = 3
 #: (TrackerSettings.max_accel).
 ACCEL_LIMIT = 2.0
 #: Share of its own blade period a track coasts through weak matches after its last clear
-#: one (Tracker._coasts): the blind part of the paper room's blade period is about half;
-#: a whole period held an abruptly stopped fan's direction 0.7 s past the stop.
+#: one (Tracker._coasts): long enough for the blind part of a blade period (about half
+#: in the paper room), short enough that a fan stopped with its blade out of view is
+#: soon measured again rather than held turning.
 COAST_SHARE = 0.6
 #: Clear-match credit a track must hold before it may coast: each clear match (quality
 #: min_info or more) it accepts adds one, up to COAST_CREDIT, and each it rejects takes
 #: one away. A wrong first lock (a fast fan against a slow reference) rejects the clear
-#: ones, never coasts and is given up by its weak outliers as before.
+#: matches, never earns the credit, and its weak outliers give it up.
 COAST_STREAK = 3
-#: The most credit a track holds: a slow fan's blind half often begins with two clear
-#: matches at the mirror angle, which a track on its line rejects; it still coasts
-#: (resetting the credit there broke a right track up mid-turn: 0.71 s unknown in a
-#: simulated hour). Five of the last eight clear matches, a longer memory, coasted a
-#: follower whose rate change had the wrong sign through a reversal (a stop and a start
-#: instead of a reversal in a simulated hour).
+#: The most credit a track holds. A cap rather than a reset on a rejected match: a slow
+#: fan's blind half often begins with two clear matches at the mirror angle, which a
+#: right track rejects and must still coast through. A cap rather than a long memory of
+#: clear matches: a follower whose rate change has the wrong sign must not coast
+#: through a reversal on old credit.
 COAST_CREDIT = 5
 #: Largest innovation a match may have to be taken (blade periods), however wide the gate:
 #: after a coast through a slow fan's blind half-period the gate of four standard
@@ -494,11 +493,9 @@ class Tracker:
     def limit_rate(self, bound: float) -> bool:
         """Set :attr:`rate_bound` (cycles per pulse) and give up a track faster than it by
         more than twice its rate's standard deviation; True if it was given up. The bound
-        holds for new lines; a line held from before would outlive it: one locked at
-        0.43 Hz a second after a fan came to rest (the bound was 0.85 Hz then) lived on
-        the weak matches of the fan at rest for 100 s, the bound at 0.1 Hz, and claimed
-        the start that followed for its own direction (a false 'reversed' in a simulated
-        day)."""
+        limits new lines; a line locked while the bound was higher would otherwise live
+        on the weak matches of a fan at rest and claim the next start for its own
+        direction."""
         self.rate_bound = bound
         if self.x is None or self.P is None or not math.isfinite(bound):
             return False
@@ -511,9 +508,9 @@ class Tracker:
 
     def expect_change(self) -> None:
         """A fan at rest may start at any moment at up to the steepest ramp: the
-        follower's rate change is kept that uncertain (at rest its variance shrinks to
-        nothing, and a start was then taken up over seconds: the published rate 10-15 %
-        behind the fan for the first second of every start)."""
+        follower's rate change is kept that uncertain. At rest its variance would shrink
+        to nothing, and the follower would then take up a start over seconds, its rate
+        lagging the fan's."""
         if self.fP is not None and self.settings.max_accel > 0:
             v = self.settings.max_accel ** 2
             if float(self.fP[2, 2]) < v:
@@ -523,8 +520,8 @@ class Tracker:
     def _limit_accel(self) -> None:
         """No fan changes speed faster than ACCEL_LIMIT times the steepest ramp: the
         follower's rate change is held within it (the estimate projected onto the
-        bound, its variance kept). A lock on a spin-up from rest had it at 0.5 Hz/s, and
-        the rate it gave was twice the fan's for a second."""
+        bound, its variance kept), so that a lock taken on the curve of a spin-up cannot
+        start it far steeper than any fan ramps."""
         if self.fx is None or not self.settings.max_accel > 0:
             return
         lim = ACCEL_LIMIT * self.settings.max_accel
@@ -536,24 +533,24 @@ class Tracker:
         """Whether a weak match (under ``COAST_BELOW``) at pulse ``k`` is passed over rather
         than measured. While no blade is in view (the blind part of each blade period in
         many rooms, half of it in the paper room) every pulse matches one standing phase
-        at a quality of a few hundredths: fed to the filters, such matches pulled the
-        follower's rate down as if the fan were slowing, and six of them off the line
-        gave a right track up in the middle of a slow fan's turn. A track that holds
+        at a quality of a few hundredths: fed to the filters, such matches pull the
+        follower's rate down as if the fan were slowing, and a run of them off the line
+        gives a right track up in the middle of a slow fan's turn. A track that holds
         ``COAST_STREAK`` of clear-match credit (clear matches accepted less those
         rejected, at most ``COAST_CREDIT``) coasts on its prediction instead, for up
         to ``COAST_SHARE`` of its own blade period after the last clear one
         (``coast_max`` pulses at most). Beyond that weak matches are measured and
-        counted again, as before, so that a fan stopped with no blade in view is not
-        hidden by a coasting track (docs/dynamics.md)."""
+        counted as outliers, so that a fan stopped with no blade in view is not hidden
+        by a coasting track (docs/dynamics.md)."""
         st = self.settings
         if quality >= COAST_BELOW or st.coast_max <= 0 or self.clear_credit < COAST_STREAK:
             return False
         assert self.x is not None
         if abs(float(self.x[1])) < st.coast_min_rate:
             # a track slower than the floor claims no direction, and near rest a blade
-            # standing at a blind angle is the stop a coast must not hide; the follower,
-            # coasting there, carried a spin-down's deceleration through zero, and at 20
-            # dB a lock on that line called a fan coming to rest 'reversed'
+            # standing at a blind angle is the stop a coast must not hide; a follower
+            # coasting there would carry a spin-down's deceleration through zero, to a
+            # line the other way
             return False
         period = 1.0 / max(abs(float(self.x[1])), 1e-9)
         return self.clear_k is not None and \
@@ -562,14 +559,12 @@ class Tracker:
     def _keep_follower_on_side(self) -> None:
         """A coast carries no match: a follower whose rate has crossed zero against the
         track's is held at rest (rate and rate change zero) rather than carried on by its
-        rate change alone, and reported it claims no direction. A lock on a fan starting
-        from rest had its follower's change wrong-signed; coasting, the follower went
-        from -0.01 to -0.31 Hz in a second while the track held +0.11 Hz, and, reported,
-        it claimed the start the wrong way (a false 'reversed' in a simulated day once
-        the matches came back). Not restarted from the track's line: at the zero of a
-        slow reversal the track's rate is the old direction's, seconds stale, and
-        reported it renewed the old direction and cut the wait for the reversal short
-        (a reversal read as a stop and a start)."""
+        rate change alone, and reported it claims no direction: with no match to correct
+        it, a wrong-signed rate change (a lock on a fan starting from rest) would carry
+        the follower ever faster the wrong way. Not restarted from the track's line: at
+        the zero of a slow reversal the track's rate is the old direction's, seconds
+        stale, and reported it would renew the old direction and cut the wait for the
+        reversal short (a reversal read as a stop and a start)."""
         if self.fx is not None and self.x is not None \
                 and float(self.fx[1]) * float(self.x[1]) < 0.0:
             self.fx = self.fx.copy()
@@ -595,11 +590,9 @@ class Tracker:
         """Whether the follower, while its rate is the one reported (weight over 1/2,
         :attr:`rate`), expects a match (``f``, as for :meth:`_follower_takes`: within
         its own gate); None while it is not reported. A match it refuses is not taken,
-        whatever the lagging constant-rate track says: at the edge of a slow fan's blind
-        half-period a clear match at the mirror angle lay 0.43 blade period off a
-        follower right at 0.21 Hz; within the track's gate, it was folded into both, and
-        the follower jumped to 0.41 Hz (a spin-up after a reversal, 0.7 s of unknown in
-        a simulated day)."""
+        whatever the lagging constant-rate track says: the track's wider gate can hold a
+        clear match at the mirror angle (at the edge of a slow fan's blind half-period),
+        which folded into the follower would throw its rate far off."""
         if f is None or self.follower_weight <= 0.5:
             return None
         return not self._rejects(f[0], f[1], slew)
@@ -644,11 +637,10 @@ class Tracker:
         """Circular regression of the recent matches: (pulses, rate, phase, coherence).
 
         The coherence is the lower of the quality-weighted one and that of the same line
-        with the squared qualities as weights, which the few clear matches dominate: a
-        window of a fan just come to rest held five clear matches at one phase and
-        nineteen of a few hundredths' quality wandering about, and the regression found
-        a line at 0.12 Hz through the wanderers that missed the clear ones (a false
-        'reversed' a second after the rest)."""
+        with the squared qualities as weights, which the few clear matches dominate:
+        when a window holds a few clear matches and many weak ones wandering about (a
+        fan just come to rest), a line through the weak ones that misses the clear ones
+        is not coherent."""
         k, z, w = (np.array(v) for v in zip(*self._recent, strict=True))
         rate, phase, coh = circular_rate_search(k, z, w, self.max_rate)
         w2 = w * w
@@ -668,8 +660,8 @@ class Tracker:
         quality of ``min_info``. Coherence alone cannot tell: while no blade is in view
         (a fan at rest at a blind angle, the blind half of each blade period of a slow
         one) every pulse matches one phase of the table at a quality of 0.01-0.1, a
-        perfectly coherent line that stands still, and a lock on it kept a spin-up from
-        being seen for up to 2.7 s."""
+        perfectly coherent line that stands still, and a lock on it would hide a
+        spin-up until the line is given up."""
         return max((q for _, _, q in self._recent), default=0.0) >= self.settings.min_info
 
     def _init(self) -> bool:
@@ -714,9 +706,9 @@ class Tracker:
         wsum = sum(w for w, _ in self._accepted)
         if not wsum > 1e-12 or sum(w for w, a in self._accepted if a) >= 0.5 * wsum:
             return False
-        # the rejected share must rest on several clear matches: one wild match of
-        # quality 0.7 among a slow fan's four clear ones in 24 pulses made that share
-        # 0.8, and the line through it (1.3 Hz) replaced a track right for 97 s
+        # the rejected share must rest on several clear matches: among a slow fan's few
+        # clear matches in a window, one wild match of high quality alone can make the
+        # share large and its line replace a right track
         clear = st.min_info ** 2
         if sum(1 for w, a in self._accepted if not a and w >= clear) < RECHECK_REJECTED:
             return False
@@ -803,8 +795,8 @@ class Tracker:
         self._followed = bool(expected)
         if not refused and self._rejects(nu, s, slew) and self._follower_takes(f):
             # the constant-rate track lags a ramp the follower is on: it takes the
-            # follower's line instead of counting the match out (six in a row threw
-            # the track away in the middle of spin-ups, and the follower with it)
+            # follower's line instead of counting the match out (a run of such outliers
+            # would give the track, and the follower with it, up in mid-ramp)
             assert self.fx is not None and self.fP is not None
             self.x = np.array([float(self.fx[0]), float(self.fx[1])])
             self.P = 0.5 * (self.fP[:2, :2] + self.fP[:2, :2].T)

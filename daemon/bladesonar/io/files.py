@@ -1,5 +1,5 @@
-"""File edges shared by the loaders and writers: bounded reads, atomic writes, stale temp
-files, and reprs short enough for a one-line error.
+"""File edges shared by the loaders and writers: bounded reads, atomic writes and stale
+temp files.
 
 Every loader decides its limit before it reads: a file (or /dev/zero, a FIFO) is read at
 most ``limit + 1`` bytes, so a hostile size never reaches memory.
@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import reprlib
 import stat
 import tempfile
 import time
@@ -17,43 +16,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-#: Longest repr of a user value inside an error message, characters.
-MAX_REPR = 80
-
-_repr = reprlib.Repr()
-_repr.maxlevel = 2
-_repr.maxstring = MAX_REPR
-_repr.maxother = MAX_REPR
-_repr.maxlong = 40
-for _name in ("maxlist", "maxtuple", "maxdict", "maxset", "maxfrozenset", "maxdeque",
-              "maxarray"):
-    setattr(_repr, _name, 4)
-
-
-def short_repr(value: object, limit: int = MAX_REPR) -> str:
-    """repr() of a user value cut to ``limit`` characters, without ever building the full
-    repr (a nested or huge value costs no more than a short one)."""
-    try:
-        s = repr(value[:limit]) if isinstance(value, str) else _repr.repr(value)
-    except Exception:  # noqa: BLE001 - a repr that fails must not mask the real error
-        s = f"<{type(value).__name__}>"
-    s = s.replace("\n", "\\n")
-    return s if len(s) <= limit else s[:limit - 3] + "..."
-
-
-def one_line(text: object, limit: int = 120) -> str:
-    """``text`` on one line, cut to ``limit`` characters (a library's message in ours)."""
-    s = " ".join(str(text).split())
-    return s if len(s) <= limit else s[:limit - 3] + "..."
-
-
-def human_bytes(n: int) -> str:
-    """1048576 -> '1 MiB' (for limits in messages)."""
-    for unit, size in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
-        if n >= size:
-            v = n / size
-            return f"{v:.0f} {unit}" if v == int(v) else f"{v:.1f} {unit}"
-    return f"{n} bytes"
+from ..text import human_bytes
 
 
 class TooLarge(Exception):

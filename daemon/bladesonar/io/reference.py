@@ -31,7 +31,8 @@ import numpy as np
 
 from ..analysis import REFERENCE_VERSION, Reference
 from ..errors import ReferenceFileError, ReferenceMissingError
-from .files import NotAFile, TooLarge, atomic_writer, human_bytes, one_line, read_capped, short_repr
+from ..text import human_bytes, one_line, short_repr
+from .files import NotAFile, TooLarge, atomic_writer, read_capped
 
 FORMAT = "bladesonar-reference"
 #: Container version: 2 adds ``file_format`` and ``sha256`` to the metadata. Files without
@@ -231,7 +232,7 @@ def _npy(raw: bytes, name: str, *, kind: str) -> np.ndarray:
     return np.array(a, dtype=np.float64) if kind == "f" else a
 
 
-def _num(meta: dict, key: str, *, lo: float = -math.inf, hi: float = math.inf,
+def _num(meta: dict[str, Any], key: str, *, lo: float = -math.inf, hi: float = math.inf,
          lo_open: bool = False, integer: bool = False, optional: bool = False) -> Any:
     if key not in meta and optional:
         return None
@@ -313,7 +314,7 @@ def _check_meta(meta: Any) -> None:
         raise _Bad(f"metadata warnings = {short_repr(w)}, not a list of text")
 
 
-def _check_arrays(table: np.ndarray, mean_pulse: np.ndarray, meta: dict) -> None:
+def _check_arrays(table: np.ndarray, mean_pulse: np.ndarray, meta: dict[str, Any]) -> None:
     bins = meta["phase_bins"]
     length = meta["gate_samples"][1] - meta["gate_samples"][0]
     if table.shape != (bins, length) or mean_pulse.shape != (length,):

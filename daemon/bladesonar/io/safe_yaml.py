@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
-from .files import NotAFile, TooLarge, human_bytes, one_line, read_capped
+from ..text import human_bytes, one_line
+from .files import NotAFile, TooLarge, read_capped
 
 #: Largest config or scene file, bytes. The commented example with every key is 7 kB;
 #: parsing 256 KiB takes about a second with libyaml (several without).

@@ -90,11 +90,14 @@ MAX_TRUTH_BYTES = 64 << 20
 
 def read_truth(path: str | Path) -> dict[str, Any]:
     """The whole truth file (for tests, plots and short runs), at most
-    :data:`MAX_TRUTH_BYTES`; raises OSError, ValueError (too large, not JSON)."""
+    :data:`MAX_TRUTH_BYTES`; raises OSError, ValueError (too large, not a JSON object)."""
     from .files import NotAFile, TooLarge, read_capped
 
     try:
         data = read_capped(path, MAX_TRUTH_BYTES)
     except (TooLarge, NotAFile) as exc:
         raise ValueError(str(exc)) from None
-    return json.loads(data.decode("utf-8"))
+    truth = json.loads(data.decode("utf-8"))
+    if not isinstance(truth, dict):
+        raise ValueError(f"{path}: holds a JSON {type(truth).__name__}, not a truth object")
+    return truth

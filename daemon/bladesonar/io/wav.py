@@ -27,7 +27,8 @@ from typing import BinaryIO
 import numpy as np
 
 from ..errors import InputError
-from .files import AtomicFile, human_bytes
+from ..text import human_bytes
+from .files import AtomicFile
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +48,10 @@ MAX_FMT_BYTES = 1024
 BLOCK_SAMPLES = 1 << 16
 
 FIX = "record 16-bit PCM or 32-bit float mono WAV"
+#: Largest float sample magnitude read (full scale = 1): 64-bit float samples beyond
+#: float32's range are limited to it. Past full scale a sample counts as clipped whatever
+#: its size, while products of samples near 1e300 overflow float64 in the analysis.
+MAX_FLOAT_SAMPLE = float(np.finfo(np.float32).max)
 
 _PCM, _FLOAT, _EXTENSIBLE = 1, 3, 0xFFFE
 
@@ -147,6 +152,11 @@ def _to_float(raw: bytes, info: WavInfo) -> np.ndarray:
     if info.float_format:
         # NaN and inf are kept: the analysis refuses them with its own message
         x = np.frombuffer(raw, dtype="<f4" if b == 32 else "<f8").astype(np.float64)
+        if b == 64:
+            big = np.abs(x) > MAX_FLOAT_SAMPLE
+            if big.any():
+                big &= np.isfinite(x)
+                x[big] = np.copysign(MAX_FLOAT_SAMPLE, x[big])
     elif b == 8:
         x = (np.frombuffer(raw, dtype=np.uint8).astype(np.float64) - 128.0) / 128.0
     elif b == 16:

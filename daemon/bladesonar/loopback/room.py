@@ -29,13 +29,17 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.signal import fftconvolve
 
 from ..errors import AudioDeviceError, ConfigError
 from ..service.audio import bytes_per_sample, decode, encode
+
+if TYPE_CHECKING:
+    from ..config import Config
+    from ..sim.scene import Scene
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +87,7 @@ class Room:
         next pulse, as in a real room); None: two PRIs.
     """
 
-    def __init__(self, scene: Any, cfg: Any, schedule: Any = None, *, fifo_play: Path | str,
+    def __init__(self, scene: Scene, cfg: Config, schedule: Any = None, *, fifo_play: Path | str,
                  fifo_cap: Path | str, realtime: bool = False,
                  latency_samples: int | None = None, noise_sigma: float = 0.0, seed: int = 0,
                  truth: IO[str] | None = None, ir_samples: int | None = None) -> None:

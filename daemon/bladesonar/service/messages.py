@@ -283,7 +283,7 @@ def parse_command(topics: Topics, topic: str, payload: bytes) -> Command:
     Payloads are compared without case and surrounding white space. Raises
     :class:`CommandError` for anything else (too long, not UTF-8, unknown).
     """
-    from ..io.files import short_repr
+    from ..text import short_repr
 
     if len(payload) > MAX_COMMAND_BYTES:
         raise CommandError(f"{topic}: a payload of {len(payload)} bytes, longer than any "

@@ -22,6 +22,7 @@ import numpy as np
 from .. import config as config_mod
 from ..dsp.stats import median
 from ..errors import BladesonarError, ReferenceMissingError
+from ..io.config_file import load_config
 from ..live import Estimate, LiveAnalyzer
 from ..reference_fit import FitWatch
 from . import learner, memory
@@ -729,7 +730,7 @@ class Service:
         self.notifier.reloading()
         self.counters.reloads += 1
         try:
-            new = config_mod.load(self.config_path) if self.config_path else self.cfg
+            new = load_config(self.config_path) if self.config_path else self.cfg
         except BladesonarError as exc:
             self.counters.reload_errors += 1
             log.error("reload rejected, keeping the running config: %s", exc)

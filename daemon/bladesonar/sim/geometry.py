@@ -34,7 +34,6 @@ import numpy as np
 
 from .scene import Scene
 
-KINDS = ("coupling", "wall", "blade", "wall_blade", "blade_wall")
 FAN_KINDS = ("blade", "wall_blade", "blade_wall")
 #: Near-field floor of a leg length in the 1/r spreading law (the sensor under a blade).
 MIN_LEG_M = 0.05
