@@ -37,12 +37,15 @@ from .messages import (
     Command,
     CommandError,
     Message,
+    RunningHold,
     Topics,
     availability_message,
     clean,
     discovery_messages,
     event_message,
     event_payload,
+    is_legacy_config,
+    migration_messages,
     parse_command,
     state_message,
     state_payload,
@@ -325,6 +328,11 @@ class MqttPublisher:
         self._subscriptions = [(t, 1) for t in self.topics.commands] if m.commands else []
         if m.discovery:
             self._subscriptions.append((self.topics.ha_status, 1))
+        #: per-entity configs of earlier versions found retained on the broker (topics)
+        self._legacy: set[str] = set()
+        #: mid of the subscription whose SUBACK says the retained legacy configs are in
+        self._discovery_mid: int | None = None
+        self._running = RunningHold()
 
         self._lock = threading.RLock()
         self._events: collections.deque[Message] = collections.deque()
@@ -374,6 +382,7 @@ class MqttPublisher:
         c.on_connect_fail = self._on_connect_fail
         c.on_disconnect = self._on_disconnect
         c.on_message = self._on_message
+        c.on_subscribe = self._on_subscribe
         self.client = c
 
     @property
@@ -396,8 +405,9 @@ class MqttPublisher:
     def publish_state(self, estimate: Estimate | Mapping[str, Any] | None, *,
                       status: str = "ok", detail: str | None = None) -> None:
         """Retained state; while disconnected only the latest is kept."""
+        running = self._running.update(_direction_of(estimate), status, time.monotonic())
         msg = state_message(self.topics, state_payload(estimate, status=status,
-                                                       detail=detail))
+                                                       detail=detail, running=running))
         with self._lock:
             self._state = msg
             if self._connected and not self._closed:
@@ -494,7 +504,7 @@ class MqttPublisher:
                             "oldest events until the broker is back", self._event_cap)
         self._events = collections.deque(merged)
 
-    def _publish_all(self) -> None:
+    def _publish_all(self, discovery: bool = True) -> None:
         """Latest state, status and stats, availability, discovery: what a fresh
         subscriber needs. The retained values go first, so that availability ``online``
         never shows the previous run's state as current."""
@@ -502,8 +512,25 @@ class MqttPublisher:
             if msg is not None:
                 self._send(msg)
         self._send(availability_message(self.topics, True))
-        for msg in self._discovery:
+        if discovery:
+            for msg in self._discovery:
+                self._send(msg)
+
+    def _send_discovery(self) -> None:
+        """The device config, migrating the per-entity configs found on the broker
+        (messages.migration_messages): they are known once the broker acknowledged the
+        subscription made after theirs, as it sends retained messages in order."""
+        found = sorted(self._legacy)
+        self._legacy.clear()
+        if found:
+            before, after = migration_messages(self.cfg, found, self.topics)
+            log.info("MQTT: moving %d per-entity discovery configs of an earlier version "
+                     "to one device config (Home Assistant keeps the entities)", len(found))
+        else:
+            before, after = [], []
+        for msg in (*before, *self._discovery, *after):
             self._send(msg)
+        self.client.unsubscribe(self.topics.legacy_configs)
 
     def _take_back_unacked(self) -> None:
         """Before publishing on a new connection: requeue our unacknowledged events and
@@ -551,13 +578,19 @@ class MqttPublisher:
                 self._down_logged = self._drop_logged = False
                 down_s = time.monotonic() - self._down_since if self._down_since else None
                 self._down_since = None
-                self._publish_all()
+                self._publish_all(discovery=False)
                 n_events = len(self._events)
                 while self._events:
                     self._send_event(self._events.popleft())
                 dropped = self._dropped
-            if self._subscriptions:
-                client.subscribe(self._subscriptions)
+                self._legacy.clear()
+                if self._discovery:
+                    # the old configs first (QoS 0: the broker sends what it retains
+                    # right after its SUBACK), then ours, whose SUBACK says they are in
+                    client.subscribe(self.topics.legacy_configs, 0)
+                if self._subscriptions:
+                    _, mid = client.subscribe(self._subscriptions)
+                    self._discovery_mid = mid if self._discovery else None
             if first:
                 log.info("MQTT: connected to %s; availability online", self.where)
             else:
@@ -598,8 +631,23 @@ class MqttPublisher:
                         "background, keeping the latest state and up to %d events",
                         self.where, reason_code, self._event_cap)
 
+    def _on_subscribe(self, client: Any, userdata: Any, mid: int, reason_codes: Any,
+                      properties: Any) -> None:
+        try:
+            with self._lock:
+                if mid != self._discovery_mid or self._closed or not self._connected:
+                    return
+                self._discovery_mid = None
+                self._send_discovery()
+        except Exception:  # noqa: BLE001 - keep the network thread alive
+            log.exception("MQTT: publishing the discovery config failed")
+
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         try:
+            if msg.retain and msg.payload and is_legacy_config(self.topics, msg.topic):
+                with self._lock:
+                    self._legacy.add(msg.topic)
+                return
             if msg.topic in self.topics.commands:
                 self.commands.offer(msg.topic, bytes(msg.payload), bool(msg.retain))
                 return
@@ -636,6 +684,15 @@ class MqttPublisher:
             log.exception("MQTT: republishing for Home Assistant failed")
 
 
+def _direction_of(estimate: Estimate | Mapping[str, Any] | None) -> str | None:
+    if estimate is None:
+        return None
+    if isinstance(estimate, Mapping):
+        d = estimate.get("direction")
+        return None if d is None else str(d)
+    return str(estimate.direction.value)
+
+
 # -- stdout ------------------------------------------------------------------------------
 
 
@@ -653,6 +710,7 @@ class StdoutPublisher:
         self._broken = False
         self._dropped = 0
         self._started = self._closed = False
+        self._running = RunningHold()
 
     def _emit(self, msg: Message) -> None:
         if self._broken:
@@ -676,8 +734,9 @@ class StdoutPublisher:
 
     def publish_state(self, estimate: Estimate | Mapping[str, Any] | None, *,
                       status: str = "ok", detail: str | None = None) -> None:
+        running = self._running.update(_direction_of(estimate), status, time.monotonic())
         self._emit(state_message(self.topics, state_payload(estimate, status=status,
-                                                            detail=detail)))
+                                                            detail=detail, running=running)))
 
     def publish_status(self, fields: dict[str, Any]) -> None:
         self._emit(status_message(self.topics, status_payload(fields)))
