@@ -291,11 +291,9 @@ def test_origin_support_url_comes_from_the_package_metadata(monkeypatch):
         def __init__(self, urls, home=None):
             self.urls, self.home = urls, home
 
-        def get_all(self, key):
-            return self.urls if key == "Project-URL" else None
-
-        def get(self, key):
-            return self.home if key == "Home-page" else None
+        def get_all(self, key, default=None):
+            return self.urls if key == "Project-URL" else [self.home] if self.home else \
+                default
 
     monkeypatch.setattr(md, "metadata", lambda name: Meta(
         ["Documentation, https://x.example/docs", "Issues, https://x.example/issues"]))
@@ -422,7 +420,7 @@ def test_discovery_entities():
 def test_icons_never_name_a_direction():
     """A fixed icon cannot follow the state: none of an entity that can say either way
     may point one way."""
-    for (component, oid), x in configs().items():
+    for (_component, oid), x in configs().items():
         icon = x.get("icon", "")
         assert not any(w in icon for w in ("rotate-right", "rotate-left", "clockwise",
                                            "arrow-left", "arrow-right")), (oid, icon)

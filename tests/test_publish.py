@@ -621,3 +621,44 @@ def test_retained_values_go_out_before_availability_online(broker, publishers, t
         order = [m.topic for m in sub.messages]
     assert order.index(t.state) < order.index(t.availability)
     assert order.index(t.status) < order.index(t.availability)
+
+
+@pytest.mark.broker
+def test_retire_removes_the_device_and_its_retained_topics(broker, publishers, tmp_path):
+    """`bladesonar retire`: an empty device config (Home Assistant deletes the device),
+    the old per-entity configs and the retained topics cleared; other devices untouched."""
+    cfg = make_cfg(tmp_path, broker.port, device_id="gone")
+    t = Topics.for_config(cfg)
+    other = "homeassistant/sensor/other/rotation/config"
+    with Subscriber(broker.port, ["#"]) as old:
+        for topic in ("homeassistant/sensor/gone/rpm/config", other):
+            old.client.publish(topic, '{"unique_id": "x"}', qos=1,
+                               retain=True).wait_for_publish()
+    pub = publishers(cfg)
+    pub.publish_state(estimate())
+    pub.start()
+    with Subscriber(broker.port, [t.device_config]) as sub:
+        sub.wait_for(t.device_config)
+    pub.close()
+    cfg_file = tmp_path / "cfg.yaml"
+    cfg_file.write_text(json.dumps({"device_id": "gone", "mqtt": {"host": "127.0.0.1",
+                                                                  "port": broker.port}}))
+    out = subprocess.run([sys.executable, "-m", "bladesonar", "retire", "--config",
+                          str(cfg_file)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    cleared = json.loads(out.stdout)["cleared"]
+    assert t.device_config in cleared and t.state in cleared and t.availability in cleared
+    with Subscriber(broker.port, ["#"]) as late:
+        time.sleep(0.5)
+        left = sorted(m.topic for m in late.messages if m.retain)
+    assert left == [other], left
+    bad = subprocess.run([sys.executable, "-m", "bladesonar", "retire", "--config",
+                          str(cfg_file), "--timeout", "1"], capture_output=True, text=True,
+                         timeout=60)
+    assert bad.returncode == 0    # nothing left to clear is not an error
+    broker.stop()
+    down = subprocess.run([sys.executable, "-m", "bladesonar", "retire", "--config",
+                           str(cfg_file), "--timeout", "1"], capture_output=True, text=True,
+                          timeout=60)
+    assert down.returncode != 0 and "cannot reach the broker" in down.stderr, down.stderr
+    assert "Traceback" not in down.stderr

@@ -4,4 +4,4 @@ start fast and never pull in optional stages (plots)."""
 
 #: Subcommand modules in the order ``bladesonar --help`` lists them.
 COMMANDS = ("simulate", "reference", "analyze", "plot", "report", "run", "room",
-            "check_config")
+            "check_config", "retire")

@@ -434,7 +434,7 @@ def support_url() -> str | None:
         if label.strip().lower() in ("support", "issues", "homepage", "source") \
                 and url.strip().startswith("https://"):
             return url.strip()
-    home = md.get("Home-page")
+    home = md.get_all("Home-page", [None])[0]
     return home if home and home.startswith("https://") else None
 
 

@@ -47,6 +47,7 @@ from .messages import (
     is_legacy_config,
     migration_messages,
     parse_command,
+    retire_messages,
     state_message,
     state_payload,
     stats_message,
@@ -684,6 +685,72 @@ class MqttPublisher:
             log.exception("MQTT: republishing for Home Assistant failed")
 
 
+def retire(cfg: Any, timeout: float = 10.0) -> list[str]:
+    """Remove the device from Home Assistant and its retained topics from the broker:
+    the device config, any per-entity config of an earlier version, state, status,
+    stats and availability (an empty retained payload each). Run with the daemon
+    stopped (it would announce itself again). The topics cleared out.
+
+    Raises ConfigError (no broker configured) or BladesonarError (the broker cannot be
+    reached or refuses, or does not acknowledge within ``timeout`` s).
+    """
+    from ..errors import BladesonarError
+
+    if cfg.mqtt.host is None:
+        raise ConfigError("mqtt.host", None, "names no broker: there is nothing to retire")
+    pub = MqttPublisher(cfg, close_timeout=timeout)
+    c, topics = pub.client, pub.topics
+    found: set[str] = set()
+    ready = threading.Event()
+    problem: list[str] = []
+    last_mid: list[int] = []
+
+    def on_connect(client: Any, userdata: Any, flags: Any, reason_code: Any,
+                   properties: Any) -> None:
+        if reason_code.is_failure:
+            problem.append(f"the broker refused the connection: {reason_code}")
+            ready.set()
+            return
+        client.subscribe(topics.legacy_configs, 0)
+        last_mid.append(client.subscribe(topics.device_config, 0)[1])
+
+    def on_subscribe(client: Any, userdata: Any, mid: int, reason_codes: Any,
+                     properties: Any) -> None:
+        if last_mid and mid == last_mid[0]:
+            ready.set()     # retained messages of both came before this SUBACK
+
+    def on_message(client: Any, userdata: Any, msg: Any) -> None:
+        if msg.retain and msg.payload and is_legacy_config(topics, msg.topic):
+            found.add(msg.topic)
+
+    c.on_connect, c.on_subscribe, c.on_message = on_connect, on_subscribe, on_message
+    c.on_disconnect = c.on_connect_fail = None
+    try:
+        c.connect(pub.host, pub.port, keepalive=cfg.mqtt.keepalive_s)
+    except OSError as exc:
+        raise BladesonarError(f"cannot reach the broker at {pub.where}: "
+                              f"{exc.strerror or exc}") from None
+    c.loop_start()
+    try:
+        if not ready.wait(timeout) or problem:
+            raise BladesonarError(problem[0] if problem else
+                                  f"the broker at {pub.where} did not answer within "
+                                  f"{timeout:g} s")
+        msgs = [*retire_messages(cfg, topics),
+                *(Message(t, None, qos=1, retain=True) for t in sorted(found))]
+        infos = [c.publish(m.topic, m.encode(), qos=m.qos, retain=m.retain) for m in msgs]
+        end = time.monotonic() + timeout
+        for info in infos:
+            info.wait_for_publish(max(end - time.monotonic(), 0.01))
+        if not all(_acked(i) for i in infos):
+            raise BladesonarError(f"the broker at {pub.where} did not acknowledge the "
+                                  f"removal within {timeout:g} s; run it again")
+        return [m.topic for m in msgs]
+    finally:
+        c.disconnect()
+        c.loop_stop()
+
+
 def _direction_of(estimate: Estimate | Mapping[str, Any] | None) -> str | None:
     if estimate is None:
         return None
@@ -762,4 +829,4 @@ class StdoutPublisher:
 
 
 __all__ = ["CommandInbox", "MqttPublisher", "Publisher", "StdoutPublisher",
-           "make_publisher", "read_password", "tls_files"]
+           "make_publisher", "read_password", "retire", "tls_files"]

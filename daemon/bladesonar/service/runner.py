@@ -535,7 +535,8 @@ class Service:
                 f"{self.fit.moving_s:.0f} s of turning (stale below "
                 f"{self.cfg.reference.stale_fit:g}): the device, the fan or the room changed; "
                 "learn a new reference")
-        if self._last_state is None and not self._ready_sent:
+        if self._last_state is None and not self._ready_sent \
+                and not self.counters.references_learned:
             return "starting", None
         return "ok", None
 
@@ -751,10 +752,12 @@ class Service:
                 "reference_learned", reference=info.get("id"), rate_hz=info.get("rate_hz"),
                 quality=info.get("quality"), direction=info.get("direction"), source=why,
                 warnings=info.get("warnings") or [])
-            # the file watch path: read back what was written, new analyzer, re-align
+            # read back what was written, new analyzer, re-align; at once, so that no
+            # status lies between learning and the new reference
             self.analyzer = None
             self._reference_problem = None
-            self._next_reference_try = 0.0
+            self._next_reference_try = self.clock() + REFERENCE_POLL_S
+            self._load_reference()
             return
         self.counters.learn_failures += 1
         self._learn_failure = res.error
