@@ -443,9 +443,10 @@ def test_discovery_follows_the_prefixes():
 
 
 def test_migration_from_per_entity_configs_keeps_entities_and_removes_retired_ones():
-    """Home Assistant's path (its discovery.py, tests "migration to device base"):
-    migrate_discovery on each old topic the device config still has, the device config,
-    then an empty retained payload on every old topic."""
+    """Home Assistant's migrate_discovery path (its discovery.py and entity.py):
+    migrate_discovery on each old topic the device config still has (unloaded, registry
+    kept), then an empty retained payload on every old topic, all before the device
+    config (an empty payload after it draws a warning per entity in 2025.4)."""
     cfg = cfg_with()
     t = M.Topics.for_config(cfg)
     found = ["homeassistant/sensor/fan-1/rotation/config",
@@ -455,13 +456,15 @@ def test_migration_from_per_entity_configs_keeps_entities_and_removes_retired_on
     assert not M.is_legacy_config(t, t.device_config)
     assert not M.is_legacy_config(t, "homeassistant/sensor/other/rotation/config")
     assert not M.is_legacy_config(t, "homeassistant/status")
-    before, after = M.migration_messages(cfg, found)
-    assert [(m.topic, m.payload, m.retain) for m in before] == [
-        ("homeassistant/device_automation/fan-1/motion_reversed/config",
-         {"migrate_discovery": True}, True),
-        ("homeassistant/sensor/fan-1/rotation/config", {"migrate_discovery": True}, True)]
-    assert sorted(m.topic for m in after) == sorted(found)
-    assert all(m.payload is None and m.retain for m in after)
+    msgs = M.migration_messages(cfg, found)
+    migrate = {"migrate_discovery": True}
+    assert [(m.topic, m.payload) for m in msgs] == [
+        ("homeassistant/device_automation/fan-1/motion_reversed/config", migrate),
+        ("homeassistant/sensor/fan-1/rotation/config", migrate),
+        ("homeassistant/device_automation/fan-1/motion_reversed/config", None),
+        ("homeassistant/sensor/fan-1/rotation/config", None),
+        ("homeassistant/sensor/fan-1/uptime/config", None)]
+    assert all(m.retain and m.qos == 1 for m in msgs)
     # the device config's components have the discovery ids of the old topics:
     # (component, "<node_id> <object_id>") in Home Assistant
     cmps = device_payload()["cmps"]

@@ -309,8 +309,8 @@ def test_discovery_device_config_migration_and_home_assistant_restart(broker, pu
                                                                       tmp_path):
     """Per-entity configs of an earlier version, retained on the broker, are handed over
     to the one device config the way Home Assistant's migrate_discovery path wants:
-    migrate_discovery on the kept ones, the device config, then empty retained payloads
-    on all of them (which removes the retired uptime sensor). Another device's config is
+    migrate_discovery on the kept ones, empty retained payloads on all of them (which
+    removes the retired uptime sensor), then the device config. Another device's config is
     not touched. Home Assistant's 'online' brings the device config again, nothing else."""
     cfg = make_cfg(tmp_path, broker.port, device_id="fan_1")
     t = Topics.for_config(cfg)
@@ -327,15 +327,14 @@ def test_discovery_device_config_migration_and_home_assistant_restart(broker, pu
         pub = publishers(cfg)
         pub.publish_state(estimate(0.5))  # before the connection: sent on connect
         pub.start()
-        sub.wait_until(lambda ms: [m for m in ms if m.topic == old_uptime and not m.retain])
+        sub.wait_until(lambda ms: [m for m in ms if m.topic == t.device_config])
         live = [(m.topic, m.payload) for m in sub.messages
                 if not m.retain and m.topic.startswith("homeassistant/")]
         migrate = json.dumps({"migrate_discovery": True}, separators=(",", ":")).encode()
         assert live[:2] == [(old_trigger, migrate), (old_rotation, migrate)]
-        assert live[2][0] == t.device_config
-        assert sorted(live[3:]) == sorted([(old_rotation, b""), (old_trigger, b""),
-                                           (old_uptime, b"")])
-        dev = json.loads(live[2][1])
+        assert live[2:5] == [(old_trigger, b""), (old_rotation, b""), (old_uptime, b"")]
+        assert live[5][0] == t.device_config and len(live) == 6
+        dev = json.loads(live[5][1])
         assert dev["cmps"]["rotation"]["unique_id"] == "bladesonar_fan_1_rotation"
         assert dev["cmps"]["rate"]["availability_topic"] == t.availability
         sub.wait_for(t.state)

@@ -523,13 +523,11 @@ class MqttPublisher:
         subscription made after theirs, as it sends retained messages in order."""
         found = sorted(self._legacy)
         self._legacy.clear()
+        before = migration_messages(self.cfg, found, self.topics) if found else []
         if found:
-            before, after = migration_messages(self.cfg, found, self.topics)
             log.info("MQTT: moving %d per-entity discovery configs of an earlier version "
                      "to one device config (Home Assistant keeps the entities)", len(found))
-        else:
-            before, after = [], []
-        for msg in (*before, *self._discovery, *after):
+        for msg in (*before, *self._discovery):
             self._send(msg)
         self.client.unsubscribe(self.topics.legacy_configs)
 
