@@ -663,3 +663,27 @@ def test_bad_and_hostile_commands_are_refused_with_the_value_and_the_fix(topic_k
     t = M.Topics.for_config(cfg_with())
     with pytest.raises(M.CommandError, match=re.escape(match) if "'" in match else match):
         M.parse_command(t, getattr(t, topic_key), payload)
+
+
+def test_every_stats_key_is_documented():
+    """docs/mqtt.md's stats table names every key the runner sends (and no other)."""
+    from pathlib import Path
+
+    from bladesonar.service.notify import NullNotifier
+    from bladesonar.service.runner import Service
+
+    def unused(*_a):
+        raise AssertionError("not started in this test")
+
+    svc = Service(cfg_with(), config_path=None, audio_factory=unused,
+                  publisher_factory=unused, analyzer_factory=unused, reference_loader=unused,
+                  notifier=NullNotifier())
+    sent = set(M.stats_payload(svc.stats(0.0), extra={"reconnects": 0,
+                                                      "dropped_events": 0}))
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "mqtt.md").read_text()
+    table = doc[doc.index("### stats"):doc.index("## Commands")]
+    documented = set()
+    for line in table.splitlines():
+        if line.startswith("| `"):
+            documented |= set(re.findall(r"`([a-z_]+)`", line.split("|")[1]))
+    assert sent == documented, (sent - documented, documented - sent)
