@@ -596,8 +596,8 @@ logger:
         for ln in bad[:10]:
             print("   ", ln[:300])
         if expected:
-            print(f"    ({len(expected)} lines only say the broker was gone while this "
-                  "check had stopped it:)")
+            print(f"    (expected: {len(expected)} line{'s' if len(expected) > 1 else ''} "
+                  "saying only that the broker was gone while this check had stopped it)")
             for ln in expected[:4]:
                 print("   ", ln[:300])
         print(f"\nHome Assistant {ha_version}: {sum(ok for ok, _ in RESULTS)} passed, "

@@ -678,7 +678,9 @@ class MqttPublisher:
         try:
             with self._lock:
                 if self._connected and not self._closed:
-                    self._publish_all()
+                    # while the old configs are still being looked for, the device
+                    # config waits for them (_send_discovery sends it)
+                    self._publish_all(discovery=self._discovery_mid is None)
         except Exception:  # noqa: BLE001 - a timer thread; log and carry on
             log.exception("MQTT: republishing for Home Assistant failed")
 
