@@ -631,6 +631,13 @@ def test_stats_templates():
     assert got["started"] == "2026-11-23T09:29:18.904+00:00"
     assert dt.datetime.fromisoformat(got["started"]).utcoffset() == dt.timedelta(0)
     assert got["cpu"] == "7.3" and got["xruns"] == "2"
+    # counters an older daemon's message lacks are unknown, not an error in the template
+    assert got["dropped_events"] == got["commands_refused"] == got["latency"] == "None"
+    full = M.stats_payload({"dropped_events": 4, "commands_refused": 1, "clock_ppm": -0.0,
+                            "latency_ms": {"median": 120.5, "max": 300.0, "n": 12}}, t=T0)
+    got = states_of(full, "stats")
+    assert (got["dropped_events"], got["commands_refused"], got["clock_ppm"],
+            got["latency"]) == ("4", "1", "0.0", "120.5")
 
 
 # -- commands ------------------------------------------------------------------------------

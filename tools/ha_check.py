@@ -256,11 +256,11 @@ def merged(xs: list[str]) -> list[str]:
 
 
 def table(states: dict[str, dict]) -> str:
-    rows = [("entity", "state", "unit", "category")]
-    for eid in sorted(states):
-        a = states[eid]["attributes"]
-        rows.append((eid, str(states[eid]["state"])[:32], a.get("unit_of_measurement", ""),
-                     states[eid].get("category", "")))
+    rows = [("entity", "name", "state", "unit")]
+    for x in sorted(states.values(), key=lambda x: x["entity_id"]):
+        a = x["attributes"]
+        rows.append((x["entity_id"], a.get("friendly_name", "").removeprefix(f"{NAME} "),
+                     str(x["state"])[:32], a.get("unit_of_measurement", "")))
     w = [max(len(r[i]) for r in rows) for i in range(4)]
     return "\n".join("  ".join(c.ljust(w[i]) for i, c in enumerate(r)).rstrip() for r in rows)
 

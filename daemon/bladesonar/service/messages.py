@@ -583,18 +583,18 @@ _ENTITIES: tuple[tuple[str, str, str, dict[str, Any]], ...] = (
         "entity_category": "config", "icon": "mdi:puzzle-remove-outline"}),
     ("sensor", "started", "stats", {
         "name": "Started", "device_class": "timestamp", "entity_category": "diagnostic",
-        "value_template": _none_or("started_at", "value_json.started_at")}),
+        "value_template": _stat("started_at")}),
     ("sensor", "xruns", "stats", {
         "name": "Audio xruns", "state_class": "total_increasing",
-        "entity_category": "diagnostic", "value_template": "{{ value_json.xruns }}",
+        "entity_category": "diagnostic", "value_template": _stat("xruns"),
         "icon": "mdi:waveform"}),
     ("sensor", "dropped_pulses", "stats", {
         "name": "Dropped pulses", "state_class": "total_increasing",
-        "entity_category": "diagnostic", "value_template": "{{ value_json.dropped_pulses }}",
+        "entity_category": "diagnostic", "value_template": _stat("dropped_pulses"),
         "icon": "mdi:pulse"}),
     ("sensor", "reconnects", "stats", {
         "name": "MQTT reconnects", "state_class": "total_increasing",
-        "entity_category": "diagnostic", "value_template": "{{ value_json.reconnects }}",
+        "entity_category": "diagnostic", "value_template": _stat("reconnects"),
         "icon": "mdi:lan-disconnect"}),
     ("sensor", "dropped_events", "stats", {
         "name": "Dropped events", "state_class": "total_increasing",
@@ -609,7 +609,7 @@ _ENTITIES: tuple[tuple[str, str, str, dict[str, Any]], ...] = (
     ("sensor", "clock_ppm", "stats", {
         "name": "Clock offset", "unit_of_measurement": "ppm", "state_class": "measurement",
         "suggested_display_precision": 1, "entity_category": "diagnostic",
-        "value_template": _stat("clock_ppm"),
+        "value_template": _stat("clock_ppm", "v + 0.0"),   # + 0.0: no "-0.0"
         "icon": "mdi:clock-fast"}),
     ("sensor", "latency", "stats", {
         "name": "Latency", "unit_of_measurement": "ms", "device_class": "duration",
@@ -620,7 +620,7 @@ _ENTITIES: tuple[tuple[str, str, str, dict[str, Any]], ...] = (
     ("sensor", "cpu", "stats", {
         "name": "CPU share", "unit_of_measurement": "%", "state_class": "measurement",
         "entity_category": "diagnostic", "suggested_display_precision": 1,
-        "value_template": _none_or("cpu_share", "(value_json.cpu_share * 100) | round(1)"),
+        "value_template": _stat("cpu_share", "(v * 100) | round(1)"),
         "icon": "mdi:cpu-64-bit"}),
 )
 

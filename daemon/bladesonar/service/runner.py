@@ -590,6 +590,10 @@ class Service:
             # re-learning a stale reference: only from a fan seen moving now (the motion
             # meter: the stale reference's own answers may well be unknown)
             return
+        if self.reference is not None:
+            f = self.fit.fit if self.fit is not None else None
+            self._learn_note = ("the reference no longer fits the room"
+                                + (f" (fit {f:.2f})" if f is not None else ""))
         self._start_recording("auto" if self.reference is None else "relearn")
 
     def _start_recording(self, why: str) -> None:
