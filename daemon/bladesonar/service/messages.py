@@ -14,7 +14,12 @@ event                       1     no      JSON: ``kind``, ``time``, ``details``
 stats                       0     yes     JSON: health counters and ``time``
 command/reference           (in)          ``learn`` / ``forget`` (subscribed)
 command/reference_direction (in)          ``cw`` / ``ccw`` / ``unknown`` (subscribed)
+command/setting/<key>       (in)          a value of ``reference.<key>`` (SETTINGS)
 ==========================  ====  ======  ==========================================
+
+Home Assistant reads them through one retained device-based discovery config
+(``<discovery_prefix>/device/<node_id>/config``), which takes over the per-entity configs
+of earlier versions (:func:`migration_messages`).
 
 Payloads are JSON with NaN and infinities turned into ``null`` and floats rounded to six
 significant digits; times are ISO-8601 in UTC with an explicit ``+00:00``.

@@ -352,6 +352,7 @@ class Service:
                             reference=estimate.reference)
                     self.publisher.publish_state(estimate, status=status,
                                                  detail=None if status == "ok" else detail)
+                    self._publish_status()    # with the state (on change only)
                     done_at = blocks[-1].captured_at     # the period that completed it
                     if done_at is not None:
                         self._latencies.append(self.clock() - done_at)
