@@ -486,6 +486,7 @@ logger:
             un = await wait_for(lambda: _state_is(ha, eid["rotation"], "unavailable"), 10, 0.05)
             daemon.start()
             back = await wait_for(lambda: _state_is(ha, eid["rotating"], "on"), 60, 0.2)
+            await asyncio.sleep(1.0)   # the websocket's record may trail the REST state
             run = merged(ha.changes(eid["rotating"], t_r, time.monotonic()))
             check(bool(un) and bool(back) and run == ["on", "unavailable", "unknown", "on"],
                   f"daemon restart: Running {run}")
