@@ -242,14 +242,17 @@ def test_daemon_through_alsa_loopback_and_a_real_broker(tmp_path):
             assert first["rate_hz"] == pytest.approx(RATE, rel=0.03)
             assert first["confidence"] > 0.5
             # what a subscriber arriving now (Home Assistant after a restart) gets at once:
-            # retained discovery configs wired to availability, and the current state
+            # the retained device config, its entities wired to availability, and the
+            # current state
             with Subscriber(broker.port, ["bladesonar/#", "homeassistant/#"]) as late:
                 time.sleep(0.5)
-                disc = [m for m in late.messages if m.topic.startswith("homeassistant/")
-                        and "/device_automation/" not in m.topic]   # (triggers: no entity)
-                assert len(disc) >= 5 and all(m.retain for m in disc)
-                assert all(json.loads(m.text)["availability_topic"] ==
-                           "bladesonar/loopback/availability" for m in disc)
+                disc = [m for m in late.messages if m.topic.startswith("homeassistant/")]
+                assert [m.topic for m in disc] == ["homeassistant/device/loopback/config"]
+                assert disc[0].retain
+                cmps = json.loads(disc[0].text)["cmps"].values()
+                assert len(cmps) >= 5 and all(
+                    c["availability_topic"] == "bladesonar/loopback/availability"
+                    for c in cmps if c["p"] != "device_automation")   # (triggers: none)
                 now = [m for m in late.messages if m.topic == states]
                 assert now and now[0].retain and json.loads(now[0].text)["direction"] == "same"
 

@@ -137,12 +137,40 @@ def test_zero_config_learning_and_the_reference_commands(tmp_path):
             wait_state(sub, lambda p: p.get("reference") == learned["details"]["reference"]
                        and p["rotation"] == "ccw", timeout=30)
 
-            # 6. Forget: the file goes (kept as .previous), the daemon learns again
+            # 6. a setting from Home Assistant: checked like the YAML, used, stored
+            sub.client.publish(f"{BASE}/command/setting/learn_seconds", "100", qos=1)
+            time.sleep(5.5)     # commands pass one per 5 s after a burst of 3
+            sub.client.publish(f"{BASE}/command/setting/learn_seconds", "9", qos=1)
+            sub.wait_until(lambda ms: [p for p in jpayloads(sub, f"{BASE}/status")
+                                       if (p.get("settings") or {}).get("learn_seconds")
+                                       == 9.0], 30)
+            stored = json.loads((state / "settings.json").read_text())
+            assert stored == {"learn_seconds": {"value": 9.0, "yaml": 8.0}}
+
+            # 7. Forget: one step to learning (no starting, no reference_missing, no
+            # advice to run a command), the file kept as .previous, the fan's direction
+            # carried to the new reference
+            n_status = len(jpayloads(sub, f"{BASE}/status"))
+            n_events = len(events(sub))
+            time.sleep(5.5)     # the rate limit again
             sub.client.publish(f"{BASE}/command/reference", "forget", qos=1)
             wait_event(sub, "reference_forgotten", timeout=30)
             learned = wait_event(sub, "reference_learned", 3, timeout=90)
             assert learned["details"]["source"] == "auto"
+            assert learned["details"]["direction"] == "ccw"
             assert ref_path.is_file() and previous_path(ref_path).is_file()
+            after = jpayloads(sub, f"{BASE}/status")[n_status:]
+            kinds = [e["kind"] for e in events(sub)[n_events:]]
+            assert kinds[:2] == ["reference_forgotten", "reference_learned"], kinds
+            until_learned = [p for p in after if p["reference"] is None]
+            assert until_learned and {p["status"] for p in until_learned} == {"learning"}
+            assert "forgotten" in until_learned[0]["detail"]
+            assert "recording 9 s" in until_learned[0]["detail"]
+            assert all(p["reference_direction"] == "ccw" for p in until_learned)
+            assert not any("bladesonar reference" in json.dumps(x)
+                           for x in [*after, *events(sub)[n_events:]])
+            wait_state(sub, lambda p: p.get("reference") == learned["details"]["reference"]
+                       and p["rotation"] == "ccw" and p["running"] is True, timeout=30)
             assert proc.poll() is None
         finally:
             rc = stop_daemon(proc)
@@ -151,6 +179,7 @@ def test_zero_config_learning_and_the_reference_commands(tmp_path):
         log = (tmp_path / "daemon.log").read_text()
         assert rc == 0, log
         assert "retained command is ignored" in log
+        assert "setting from MQTT refused: reference.learn_seconds = 100.0" in log
         assert "Traceback" not in log
 
 
@@ -180,9 +209,16 @@ def test_a_reference_that_no_longer_fits_is_called_stale_and_relearned(tmp_path)
             try:
                 stale = wait_event(sub, "reference_stale", timeout=120)
                 assert stale["details"]["fit"] < 0.3
+                # auto_relearn starts learning at once: the status goes from ok to
+                # learning, and says why (with reference.auto_relearn off it would stay
+                # reference_stale, "learn a new reference")
                 st = sub.wait_until(lambda ms: [p for p in jpayloads(sub, f"{BASE}/status")
-                                                if p["status"] == "reference_stale"], 30)[0]
-                assert st["fit"] < 0.3 and "learn a new reference" in st["detail"]
+                                                if p["status"] in ("reference_stale",
+                                                                   "learning")], 30)[0]
+                assert st["fit"] < 0.3
+                assert ("learn a new reference" in st["detail"]) if \
+                    st["status"] == "reference_stale" else \
+                    (st["learning"] == "relearn" and "no longer fits" in st["detail"])
                 learned = wait_event(sub, "reference_learned", timeout=120)
                 assert learned["details"]["source"] == "relearn"
                 new = learned["details"]["reference"]

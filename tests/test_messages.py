@@ -14,6 +14,7 @@ from bladesonar import __version__, config
 from bladesonar.dsp.decide import Decision
 from bladesonar.live import Estimate
 from bladesonar.service import messages as M
+from bladesonar.transitions import Direction
 
 T0 = 1_700_000_000.25  # 2023-11-14T22:13:20.250Z
 
@@ -95,10 +96,11 @@ def test_message_encoding():
 
 
 def test_state_payload_from_a_live_estimate():
-    p = M.state_payload(live_estimate(), t=T0)
+    p = M.state_payload(live_estimate(), t=T0, running=True)
     assert list(p) == [*M.STATE_KEYS, "reason", "time"]
     assert p == {
-        "direction": "reversed", "rotation": "cw", "rotating": True, "rate_hz": 0.35036,
+        "direction": "reversed", "rotation": "cw", "rotating": True, "running": True,
+        "rate_hz": 0.35036,
         "rpm": 21.021, "relative_rate": -0.70069, "rate_state": "changing",
         "rate_change_hz_s": -0.0451, "confidence": 0.9718, "window_s": 4.0,
         "reference": "0123456789ab", "status": "ok",
@@ -119,6 +121,41 @@ def test_state_payload_of_nothing_known_has_a_status_and_its_detail():
     assert p["direction"] == "unknown" and p["rotating"] is None and p["rate_hz"] is None
     assert (p["status"], p["detail"]) == ("learning", "recording")
     assert M.state_payload(None, t=T0)["direction"] == "unknown"
+    # no answer, so no confidence in one: null (Home Assistant's unknown), never 0
+    assert p["confidence"] is None and M.state_payload(None, t=T0)["confidence"] is None
+
+
+def test_confidence_only_of_a_known_answer():
+    d = Decision("unknown", None, 0.1, 0.045, 2.7, 0.5, "confirming a stop")
+    e = Estimate.from_decision(d, window_s=4.0, reference="ab")
+    p = M.state_payload(e, t=T0)
+    assert p["confidence"] is None and p["rate_hz"] == 0.045     # the raw rate stays
+    assert M.state_payload(live_estimate(), t=T0)["confidence"] == 0.9718
+
+
+def test_running_is_held_through_unknown_and_goes_off_at_the_confirmed_stop():
+    """What the analysis says around a reversal and a stop (same, ~1 s of unknown,
+    reversed; unknown, stopped) against what Running shows: one value per answer."""
+    h = M.RunningHold(hold_s=60.0)
+    seq = [(0.0, "unknown", "starting"), (1.0, "same", "ok"), (2.0, "unknown", "ok"),
+           (2.7, "unknown", "ok"), (3.0, "reversed", "ok"), (10.0, "unknown", "ok"),
+           (11.2, "stopped", "ok"), (12.0, "unknown", "ok"), (13.0, "same", "ok"),
+           (14.0, "unknown", "learning"), (70.0, "unknown", "learning"),
+           (74.5, "unknown", "learning"), (75.0, "same", "ok"),
+           (76.0, "unknown", "reference_stale")]
+    got = [h.update(d, st, t) for t, d, st in seq]
+    assert got == [None, True, True, True, True, True, False, False, True,
+                   True, True, None, True, None]
+
+
+def test_running_goes_unknown_after_the_hold_and_on_any_other_status():
+    for status in ("no_signal", "reference_missing", "reference_invalid"):
+        h = M.RunningHold(hold_s=5.0)
+        h.update("stopped", "ok", 0.0)
+        assert h.update(None, status, 0.1) is None
+    h = M.RunningHold(hold_s=5.0)
+    h.update("stopped", "ok", 0.0)
+    assert [h.update("unknown", "ok", t) for t in (1.0, 5.9, 6.1)] == [False, False, None]
 
 
 def test_estimate_from_a_decision_rounds_like_the_offline_answer():
@@ -199,23 +236,70 @@ HA_STATE_CLASSES = {"measurement", "total", "total_increasing"}
 #: Home Assistant's own state words: no entity may use them as a value of its own
 HA_RESERVED = {"unknown", "unavailable"}
 
-TOPIC_RE = re.compile(r"homeassistant/(sensor|binary_sensor|event|button|select|"
-                      r"device_automation)/fan-1/([a-zA-Z0-9_-]+)/config")
+HA_SCHEMA.update({
+    "switch": (_COMMON | {"command_template", "command_topic", "device_class", "optimistic",
+                          "payload_off", "payload_on", "retain", "state_off", "state_on",
+                          "state_topic", "value_template"}, {"command_topic"}),
+    "number": (_COMMON | {"command_template", "command_topic", "device_class", "max", "min",
+                          "mode", "optimistic", "payload_reset", "retain", "state_topic",
+                          "step", "unit_of_measurement", "value_template"},
+               {"command_topic"}),
+})
+HA_CATEGORIES.update({"switch": {"config", "diagnostic"}, "number": {"config", "diagnostic"}})
+#: device-based discovery (2024.11 and later): the payload's own keys, abbreviated
+HA_DEVICE_PAYLOAD_KEYS = {"dev", "o", "cmps", "availability", "availability_topic", "qos",
+                          "state_topic", "command_topic", "encoding"}
 
 
 def discovery(**mqtt):
     return {m.topic: m for m in M.discovery_messages(cfg_with(**mqtt))}
 
 
+def device_payload(**mqtt):
+    msgs = M.discovery_messages(cfg_with(**mqtt))
+    assert len(msgs) == 1
+    return json.loads(msgs[0].encode())
+
+
 def configs(**mqtt):
-    """{(component, object_id): config} of the entities announced (not the removals)."""
+    """{(component, object_id): config} of the device's components, as Home Assistant
+    makes them: each with the device and origin of the device payload."""
+    dev = device_payload(**mqtt)
     out = {}
-    for topic, m in discovery(**mqtt).items():
-        if m.payload is not None:
-            g = TOPIC_RE.fullmatch(topic)
-            assert g, topic
-            out[(g.group(1), g.group(2))] = json.loads(m.encode())
+    for oid, c in dev["cmps"].items():
+        c = dict(c)
+        component = c.pop("p")
+        c["device"], c["origin"] = dev["dev"], dev["o"]
+        out[(component, oid)] = c
     return out
+
+
+def test_one_retained_device_config_with_origin():
+    msgs = discovery()
+    assert list(msgs) == ["homeassistant/device/fan-1/config"]
+    m = msgs["homeassistant/device/fan-1/config"]
+    assert m.retain and m.qos == 1
+    dev = json.loads(m.encode())
+    assert set(dev) <= HA_DEVICE_PAYLOAD_KEYS and {"dev", "o", "cmps"} <= set(dev)
+    assert dev["o"]["name"] == "bladesonar" and dev["o"]["sw_version"] == __version__
+
+
+def test_origin_support_url_comes_from_the_package_metadata(monkeypatch):
+    import importlib.metadata as md
+
+    class Meta:
+        def __init__(self, urls, home=None):
+            self.urls, self.home = urls, home
+
+        def get_all(self, key, default=None):
+            return self.urls if key == "Project-URL" else [self.home] if self.home else \
+                default
+
+    monkeypatch.setattr(md, "metadata", lambda name: Meta(
+        ["Documentation, https://x.example/docs", "Issues, https://x.example/issues"]))
+    assert M.origin_block()["support_url"] == "https://x.example/issues"
+    monkeypatch.setattr(md, "metadata", lambda name: Meta([], "http://insecure.example"))
+    assert "support_url" not in M.origin_block()
 
 
 def test_discovery_configs_pass_home_assistants_schema():
@@ -240,28 +324,22 @@ def test_discovery_configs_pass_home_assistants_schema():
             assert c.get("device_class") not in ("enum", "timestamp")
         if c.get("device_class") == "timestamp":
             assert "unit_of_measurement" not in c
+        if component == "number":
+            assert c["min"] < c["max"] and c["step"] > 0 and c["mode"] in ("box", "slider")
         for key in ("state_topic", "command_topic", "availability_topic",
                     "json_attributes_topic"):
             if key in c:
                 assert "+" not in c[key] and "#" not in c[key]
 
 
-def test_discovery_topics_ids_and_availability():
-    msgs = discovery()
+def test_discovery_ids_and_availability():
     t = M.Topics.for_config(cfg_with())
     ids = set()
-    for topic, m in msgs.items():
-        g = TOPIC_RE.fullmatch(topic)
-        assert g, topic
-        assert m.retain and m.qos == 1
-        if m.payload is None:       # a retired entity, removed by an empty config
-            assert (g.group(1), g.group(2)) == ("sensor", "uptime")
-            continue
-        c = json.loads(m.encode())
-        if g.group(1) == "device_automation":
+    for (component, oid), c in configs().items():
+        if component == "device_automation":
             assert c["topic"] == t.event and c["automation_type"] == "trigger"
             continue
-        assert c["unique_id"] == f"bladesonar_fan-1_{g.group(2)}"
+        assert c["unique_id"] == f"bladesonar_fan-1_{oid}"
         ids.add(c["unique_id"])
         assert c["availability_topic"] == t.availability
         assert (c["payload_available"], c["payload_not_available"]) == ("online", "offline")
@@ -271,8 +349,7 @@ def test_discovery_topics_ids_and_availability():
                                "manufacturer": "bladesonar",
                                "model": "Pulsed-sonar rotation sensor",
                                "sw_version": __version__}
-        assert c["origin"]["name"] == "bladesonar"
-    assert len(ids) == len(msgs) - 1 - 3
+    assert len(ids) == len(configs()) - 3
 
 
 def test_device_triggers_fire_on_their_event_only():
@@ -301,13 +378,18 @@ def test_discovery_entities():
             ("sensor", "direction"), ("sensor", "status"), ("event", "motion"),
             ("event", "reference"), ("button", "learn_reference"),
             ("button", "forget_reference"), ("select", "reference_direction"),
-            ("sensor", "started")} <= set(c)
+            ("sensor", "started"), ("switch", "auto_learn"), ("number", "learn_seconds"),
+            ("number", "stale_fit"), ("sensor", "dropped_events"),
+            ("sensor", "commands_refused"), ("sensor", "clock_ppm"),
+            ("sensor", "latency")} <= set(c)
     assert ("sensor", "uptime") not in c
     assert c[("sensor", "rotation")]["options"] == ["clockwise", "counterclockwise", "stopped"]
     assert c[("sensor", "direction")]["options"] == ["same", "reversed", "stopped"]
-    assert c[("sensor", "status")]["options"] == list(M.STATUSES)
+    assert c[("sensor", "status")]["options"] == [*M.STATUS_WORDS.values(), M.DIRECTION_UNSET]
+    assert set(M.STATUS_WORDS) == set(M.STATUSES)
     assert c[("sensor", "status")]["entity_category"] == "diagnostic"
     assert c[("event", "motion")]["event_types"] == ["started", "stopped", "reversed"]
+    assert c[("event", "motion")]["name"] == "Fan events"
     assert c[("sensor", "started")]["device_class"] == "timestamp"
     rate = c[("sensor", "rate")]
     assert (rate["device_class"], rate["unit_of_measurement"], rate["state_class"]) == \
@@ -326,22 +408,77 @@ def test_discovery_entities():
     assert not any(x.get("json_attributes_topic") == t.state for x in c.values())
     rot = c[("binary_sensor", "rotating")]
     assert (rot["payload_on"], rot["payload_off"]) == ("ON", "OFF")
+    # settings: config entities whose commands the parser takes, bounds of the schema
+    for key in M.SETTINGS:
+        ent = next(x for (comp, oid), x in c.items() if oid == key)
+        assert ent["entity_category"] == "config" and ent["state_topic"] == t.status
+        assert ent["command_topic"] == t.command_setting(key)
+    assert c[("number", "learn_seconds")]["max"] == 23        # 2^20 samples at 44.1 kHz
+    assert c[("number", "learn_seconds")]["min"] == 3
+
+
+def test_icons_never_name_a_direction():
+    """A fixed icon cannot follow the state: none of an entity that can say either way
+    may point one way."""
+    for (_component, oid), x in configs().items():
+        icon = x.get("icon", "")
+        assert not any(w in icon for w in ("rotate-right", "rotate-left", "clockwise",
+                                           "arrow-left", "arrow-right")), (oid, icon)
 
 
 def test_commands_off_leaves_out_the_command_entities():
     c = configs(commands=False)
-    assert not any(k[0] in ("button", "select") for k in c)
+    assert not any(k[0] in ("button", "select", "switch", "number") for k in c)
     assert ("device_automation", "motion_reversed") in c
     assert ("sensor", "status") in c
 
 
 def test_discovery_follows_the_prefixes():
     msgs = discovery(discovery_prefix="ha", topic_prefix="home")
-    assert all(t.startswith("ha/") for t in msgs)
-    assert all(m.payload.get("availability_topic", "home/fan-1/availability")
-               == "home/fan-1/availability" and
-               m.payload.get("topic", "home/fan-1/event") == "home/fan-1/event"
-               for m in msgs.values() if m.payload is not None)
+    assert list(msgs) == ["ha/device/fan-1/config"]
+    for c in configs(discovery_prefix="ha", topic_prefix="home").values():
+        assert c.get("availability_topic", "home/fan-1/availability") == \
+            "home/fan-1/availability"
+        assert c.get("topic", "home/fan-1/event") == "home/fan-1/event"
+
+
+def test_migration_from_per_entity_configs_keeps_entities_and_removes_retired_ones():
+    """Home Assistant's migrate_discovery path (its discovery.py and entity.py):
+    migrate_discovery on each old topic the device config still has (unloaded, registry
+    kept), then an empty retained payload on every old topic, all before the device
+    config (an empty payload after it draws a warning per entity in 2025.4)."""
+    cfg = cfg_with()
+    t = M.Topics.for_config(cfg)
+    found = ["homeassistant/sensor/fan-1/rotation/config",
+             "homeassistant/device_automation/fan-1/motion_reversed/config",
+             "homeassistant/sensor/fan-1/uptime/config"]
+    assert all(M.is_legacy_config(t, x) for x in found)
+    assert not M.is_legacy_config(t, t.device_config)
+    assert not M.is_legacy_config(t, "homeassistant/sensor/other/rotation/config")
+    assert not M.is_legacy_config(t, "homeassistant/status")
+    msgs = M.migration_messages(cfg, found)
+    migrate = {"migrate_discovery": True}
+    assert [(m.topic, m.payload) for m in msgs] == [
+        ("homeassistant/device_automation/fan-1/motion_reversed/config", migrate),
+        ("homeassistant/sensor/fan-1/rotation/config", migrate),
+        ("homeassistant/device_automation/fan-1/motion_reversed/config", None),
+        ("homeassistant/sensor/fan-1/rotation/config", None),
+        ("homeassistant/sensor/fan-1/uptime/config", None)]
+    assert all(m.retain and m.qos == 1 for m in msgs)
+    # the device config's components have the discovery ids of the old topics:
+    # (component, "<node_id> <object_id>") in Home Assistant
+    cmps = device_payload()["cmps"]
+    assert cmps["rotation"]["p"] == "sensor" and cmps["motion_reversed"]["p"] == \
+        "device_automation"
+
+
+def test_retiring_clears_the_device_and_the_retained_topics():
+    msgs = M.retire_messages(cfg_with())
+    t = M.Topics.for_config(cfg_with())
+    assert [m.topic for m in msgs][0] == t.device_config
+    assert {m.topic for m in msgs} == {t.device_config, t.state, t.status, t.stats,
+                                      t.availability}
+    assert all(m.payload is None and m.retain for m in msgs)
 
 
 # -- the templates, rendered by Jinja2 (Home Assistant's template engine) ---------------
@@ -366,32 +503,41 @@ def states_of(payload: dict, topic_key: str) -> dict[str, str]:
 
 
 def _estimate(direction, rotation, rate):
-    from bladesonar.live import Estimate
-    from bladesonar.transitions import Direction
-
     return Estimate(Direction(direction), rotation, None if rate is None else 1.0, rate,
                     None if rate is None else rate * 60, "settled", 0.0, 0.9, "r", 4.0, "ab")
 
 
 def test_state_templates_give_words_for_people_and_none_when_not_known():
+    """What Home Assistant shows for a day's answers in order, Running held by the
+    publisher's RunningHold: Speed is a number only while the direction is known (0
+    only when stopped), Running never unknown between known states."""
     c = configs()
+    hold = M.RunningHold()
+    confirming = Estimate(Direction("unknown"), None, 0.01, 0.004, 0.24, None, None,
+                          0.5, "confirming a stop", 4.0, "ab")
     cases = [
+        (_estimate("unknown", None, None), {"rotation": "None", "direction": "None",
+                                            "rotating": "None", "rate": "None",
+                                            "rpm": "None", "confidence": "None"}),
         (_estimate("same", "ccw", 0.4512345), {"rotation": "counterclockwise",
                                                "direction": "same", "rotating": "ON",
-                                               "rate": "0.451", "rpm": "27.1"}),
+                                               "rate": "0.451", "rpm": "27.1",
+                                               "confidence": "90.0"}),
+        (confirming, {"rotation": "None", "rotating": "ON", "rpm": "None", "rate": "None",
+                      "confidence": "None"}),
         (_estimate("reversed", "cw", 0.3), {"rotation": "clockwise",
                                             "direction": "reversed", "rotating": "ON"}),
         (_estimate("reversed", None, 0.3), {"rotation": "None", "direction": "reversed"}),
+        (confirming, {"rotating": "ON", "rpm": "None"}),
         (_estimate("stopped", None, 0.0), {"rotation": "stopped", "direction": "stopped",
-                                           "rotating": "OFF", "rate": "0.0"}),
-        (_estimate("unknown", None, None), {"rotation": "None", "direction": "None",
-                                            "rotating": "None", "rate": "None",
-                                            "rpm": "None"}),
+                                           "rotating": "OFF", "rate": "0.0", "rpm": "0"}),
+        (confirming, {"rotating": "OFF", "rpm": "None", "rate": "None"}),
     ]
-    for est, want in cases:
-        got = states_of(M.state_payload(est, t=T0), "state")
+    for i, (est, want) in enumerate(cases):
+        running = hold.update(est.direction.value, "ok", float(i))
+        got = states_of(M.state_payload(est, t=T0, running=running), "state")
         for k, v in want.items():
-            assert got[k] == v, (est.direction, k, got[k])
+            assert got[k] == v, (i, est.direction, k, got[k])
         for k, v in got.items():
             opts = c.get(("sensor", k), {}).get("options")
             assert opts is None or v in opts or v == "None", (k, v)
@@ -405,16 +551,59 @@ def test_status_and_select_templates():
                           "reference_direction": "cw", "reference_rate_hz": 0.45,
                           "fit": 0.31, "since": "x"})
     got = states_of(p, "status")
-    assert got["status"] == "reference_stale"
+    assert got["status"] == "Reference stale"
     assert got["reference_fit"] == "31.0"
     assert got["reference_direction"] == "clockwise"
     none = states_of(M.status_payload({"status": "reference_missing"}), "status")
     assert none["reference_fit"] == "None" and none["reference_direction"] == "None"
+    assert none["status"] == "No reference"
     attrs = configs()[("sensor", "status")]["json_attributes_template"]
     assert json.loads(render(attrs, p)) == {"detail": "fit 0.3", "reference": "ab",
                                             "reference_rate_hz": 0.45}
     with pytest.raises(ValueError, match="learning"):
         M.status_payload({"status": "unknown"})
+    opts = configs()[("sensor", "status")]["options"]
+    for st in M.STATUSES:
+        assert states_of(M.status_payload({"status": st, "reference_direction": "cw"}),
+                         "status")["status"] in opts
+
+
+def test_status_says_when_the_direction_is_not_set():
+    base = {"status": "ok", "reference": "ab", "reference_direction": "unknown"}
+    assert states_of(M.status_payload(base), "status")["status"] == M.DIRECTION_UNSET
+    ok = states_of(M.status_payload({**base, "reference_direction": "ccw"}), "status")
+    assert ok["status"] == "OK"
+
+
+@pytest.mark.parametrize("fit, shown", [(1.02, "100.0"), (0.996, "100.0"), (0.5, "50.0"),
+                                        (-0.01, "0.0")])
+def test_reference_fit_stays_within_0_and_100_percent(fit, shown):
+    assert states_of(M.status_payload({"status": "ok", "fit": fit}), "status")[
+        "reference_fit"] == shown
+
+
+def test_setting_templates_and_commands():
+    t = M.Topics.for_config(cfg_with())
+    p = M.status_payload({"status": "ok", "settings": {"auto_learn": False,
+                                                       "learn_seconds": 12.0,
+                                                       "stale_fit": 0.6}})
+    got = states_of(p, "status")
+    assert (got["auto_learn"], got["learn_seconds"], got["stale_fit"]) == \
+        ("OFF", "12.0", "60.0")
+    none = states_of(M.status_payload({"status": "ok"}), "status")
+    assert none["auto_learn"] == none["learn_seconds"] == "None"
+    number = configs()[("number", "stale_fit")]
+    assert render(number["command_template"].replace("value", "value_json.v"),
+                  {"v": 45}) == "0.45"
+    assert M.parse_command(t, t.command_setting("auto_learn"), b"ON") == \
+        M.Command("setting", True, "auto_learn")
+    assert M.parse_command(t, t.command_setting("stale_fit"), b" 0.45 ") == \
+        M.Command("setting", 0.45, "stale_fit")
+    for key, bad, match in (("auto_learn", b"maybe", "not a switch value"),
+                            ("learn_seconds", b"nan", "not a number"),
+                            ("learn_seconds", b"12s", "not a number")):
+        with pytest.raises(M.CommandError, match=match):
+            M.parse_command(t, t.command_setting(key), bad)
 
 
 def test_event_templates_give_home_assistant_event_json_or_nothing():
@@ -442,6 +631,13 @@ def test_stats_templates():
     assert got["started"] == "2026-11-23T09:29:18.904+00:00"
     assert dt.datetime.fromisoformat(got["started"]).utcoffset() == dt.timedelta(0)
     assert got["cpu"] == "7.3" and got["xruns"] == "2"
+    # counters an older daemon's message lacks are unknown, not an error in the template
+    assert got["dropped_events"] == got["commands_refused"] == got["latency"] == "None"
+    full = M.stats_payload({"dropped_events": 4, "commands_refused": 1, "clock_ppm": -0.0,
+                            "latency_ms": {"median": 120.5, "max": 300.0, "n": 12}}, t=T0)
+    got = states_of(full, "stats")
+    assert (got["dropped_events"], got["commands_refused"], got["clock_ppm"],
+            got["latency"]) == ("4", "1", "0.0", "120.5")
 
 
 # -- commands ------------------------------------------------------------------------------
@@ -474,3 +670,27 @@ def test_bad_and_hostile_commands_are_refused_with_the_value_and_the_fix(topic_k
     t = M.Topics.for_config(cfg_with())
     with pytest.raises(M.CommandError, match=re.escape(match) if "'" in match else match):
         M.parse_command(t, getattr(t, topic_key), payload)
+
+
+def test_every_stats_key_is_documented():
+    """docs/mqtt.md's stats table names every key the runner sends (and no other)."""
+    from pathlib import Path
+
+    from bladesonar.service.notify import NullNotifier
+    from bladesonar.service.runner import Service
+
+    def unused(*_a):
+        raise AssertionError("not started in this test")
+
+    svc = Service(cfg_with(), config_path=None, audio_factory=unused,
+                  publisher_factory=unused, analyzer_factory=unused, reference_loader=unused,
+                  notifier=NullNotifier())
+    sent = set(M.stats_payload(svc.stats(0.0), extra={"reconnects": 0,
+                                                      "dropped_events": 0}))
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "mqtt.md").read_text()
+    table = doc[doc.index("### stats"):doc.index("## Commands")]
+    documented = set()
+    for line in table.splitlines():
+        if line.startswith("| `"):
+            documented |= set(re.findall(r"`([a-z_]+)`", line.split("|")[1]))
+    assert sent == documented, (sent - documented, documented - sent)

@@ -305,50 +305,78 @@ def test_messages_stuck_in_a_stalled_connection_do_not_overwrite_newer_ones(tmp_
 
 
 @pytest.mark.broker
-def test_discovery_configs_and_home_assistant_restart(broker, publishers, tmp_path):
+def test_discovery_device_config_migration_and_home_assistant_restart(broker, publishers,
+                                                                      tmp_path):
+    """Per-entity configs of an earlier version, retained on the broker, are handed over
+    to the one device config the way Home Assistant's migrate_discovery path wants:
+    migrate_discovery on the kept ones, empty retained payloads on all of them (which
+    removes the retired uptime sensor), then the device config. Another device's config is
+    not touched. Home Assistant's 'online' brings the device config again, nothing else."""
     cfg = make_cfg(tmp_path, broker.port, device_id="fan_1")
     t = Topics.for_config(cfg)
-    n = len([m for m in discovery_messages(cfg) if m.payload is not None
-             and "/device_automation/" not in m.topic])
-
-    def configs(ms):
-        return [m for m in ms if m.topic.endswith("/config") and m.payload
-                and "/device_automation/" not in m.topic]
-
+    old_rotation = "homeassistant/sensor/fan_1/rotation/config"
+    old_trigger = "homeassistant/device_automation/fan_1/motion_stopped/config"
+    old_uptime = "homeassistant/sensor/fan_1/uptime/config"
+    other = "homeassistant/sensor/other/rotation/config"
+    with Subscriber(broker.port, ["#"]) as old:
+        for topic in (old_rotation, old_trigger, old_uptime, other):
+            old.client.publish(topic, json.dumps({"unique_id": topic, "state_topic": "x"}),
+                               qos=1, retain=True).wait_for_publish()
     with Subscriber(broker.port, ["homeassistant/#", t.state]) as sub:
+        sub.wait_until(lambda ms: len(ms) >= 4)
         pub = publishers(cfg)
         pub.publish_state(estimate(0.5))  # before the connection: sent on connect
         pub.start()
-        got = sub.wait_until(lambda ms: len(configs(ms)) >= n and configs(ms))
-        by_object = {}
-        for m in got:
-            assert m.qos == 1
-            parts = m.topic.split("/")
-            assert parts[0] == "homeassistant" and parts[2] == "fan_1", m.topic
-            c = json.loads(m.payload)
-            assert c["availability_topic"] == t.availability
-            assert c.get("state_topic", t.state) in (t.state, t.stats, t.status, t.event)
-            by_object[parts[3]] = c
-        assert len({c["unique_id"] for c in by_object.values()}) == n
-        rate = by_object["rate"]
-        assert (rate["device_class"], rate["unit_of_measurement"], rate["state_class"]) == \
-            ("frequency", "Hz", "measurement")
-        assert by_object["rotating"]["payload_on"] == "ON"
+        sub.wait_until(lambda ms: [m for m in ms if m.topic == t.device_config])
+        live = [(m.topic, m.payload) for m in sub.messages
+                if not m.retain and m.topic.startswith("homeassistant/")]
+        migrate = json.dumps({"migrate_discovery": True}, separators=(",", ":")).encode()
+        assert live[:2] == [(old_trigger, migrate), (old_rotation, migrate)]
+        assert live[2:5] == [(old_trigger, b""), (old_rotation, b""), (old_uptime, b"")]
+        assert live[5][0] == t.device_config and len(live) == 6
+        dev = json.loads(live[5][1])
+        assert dev["cmps"]["rotation"]["unique_id"] == "bladesonar_fan_1_rotation"
+        assert dev["cmps"]["rate"]["availability_topic"] == t.availability
         sub.wait_for(t.state)
-        # Home Assistant restarts: it announces itself; we publish everything again
+        # Home Assistant restarts: it announces itself; the device config comes again
+        n = len(sub.messages)
         sub.client.publish(t.ha_status, "online", qos=1)
-        sub.wait_until(lambda ms: len(configs(ms)) >= 2 * n, timeout=5)
+        sub.wait_until(lambda ms: [m for m in ms[n:] if m.topic == t.device_config],
+                       timeout=5)
         sub.wait_for(t.state, 2, timeout=5)
         # anything else on the status topic is ignored
         sub.client.publish(t.ha_status, "offline", qos=1)
         time.sleep(0.3)
-        assert len(configs(sub.messages)) == 2 * n
-    # the retained configs are there for a Home Assistant that starts later (and the
-    # retired uptime sensor's config is gone)
-    with Subscriber(broker.port, ["homeassistant/+/fan_1/+/config"]) as late:
-        got = late.wait_until(lambda ms: len(ms) >= n and ms)
-        assert all(m.retain and m.payload for m in got)
-        assert not any(m.topic.endswith("/uptime/config") for m in got)
+        again = [m.topic for m in sub.messages[n:] if m.topic.endswith("/config")]
+        assert again == [t.device_config]
+    # what a Home Assistant that starts later finds: the device config, the other
+    # device's config, none of the old per-entity ones
+    with Subscriber(broker.port, ["homeassistant/#"]) as late:
+        time.sleep(0.5)
+        assert sorted(m.topic for m in late.messages) == sorted([t.device_config, other])
+        assert all(m.retain and m.payload for m in late.messages)
+
+
+@pytest.mark.broker
+def test_running_is_held_through_a_reversal_and_off_at_the_confirmed_stop(broker, publishers,
+                                                                          tmp_path):
+    """The answers of a reversal and a stop (unknown for a moment around each) as a
+    subscriber receives them: running on, on, on, on, off; numbers only when known."""
+    cfg = make_cfg(tmp_path, broker.port)
+    t = Topics.for_config(cfg)
+    unknown = {"direction": "unknown", "rate_hz": 0.004, "rpm": 0.24, "confidence": 0.5,
+               "reason": "confirming"}
+    seq = [estimate(0.5), unknown, {**estimate(0.5, "reversed"), "rotation": "cw"}, unknown,
+           {**estimate(0.0, "stopped"), "rotation": None, "rotating": False}]
+    with Subscriber(broker.port, [t.state]) as sub:
+        pub = publishers(cfg)
+        pub.start()
+        connected(pub)
+        for e in seq:
+            pub.publish_state(e)
+        got = payloads(sub.wait_for(t.state, len(seq)))
+    assert [p["running"] for p in got] == [True, True, True, True, False]
+    assert [p["confidence"] for p in got] == [0.93, None, 0.93, None, 0.93]
 
 
 @pytest.mark.broker
@@ -359,7 +387,7 @@ def test_a_flood_on_the_home_assistant_status_topic_logs_one_line(broker, publis
     cfg = make_cfg(tmp_path, broker.port, device_id="flood")
     t = Topics.for_config(cfg)
     n = len(discovery_messages(cfg))
-    with Subscriber(broker.port, ["homeassistant/+/flood/+/config"]) as sub:
+    with Subscriber(broker.port, ["homeassistant/device/flood/config"]) as sub:
         pub = publishers(cfg)
         pub.start()
         sub.wait_until(lambda ms: len(ms) >= n and ms)
@@ -592,3 +620,44 @@ def test_retained_values_go_out_before_availability_online(broker, publishers, t
         order = [m.topic for m in sub.messages]
     assert order.index(t.state) < order.index(t.availability)
     assert order.index(t.status) < order.index(t.availability)
+
+
+@pytest.mark.broker
+def test_retire_removes_the_device_and_its_retained_topics(broker, publishers, tmp_path):
+    """`bladesonar retire`: an empty device config (Home Assistant deletes the device),
+    the old per-entity configs and the retained topics cleared; other devices untouched."""
+    cfg = make_cfg(tmp_path, broker.port, device_id="gone")
+    t = Topics.for_config(cfg)
+    other = "homeassistant/sensor/other/rotation/config"
+    with Subscriber(broker.port, ["#"]) as old:
+        for topic in ("homeassistant/sensor/gone/rpm/config", other):
+            old.client.publish(topic, '{"unique_id": "x"}', qos=1,
+                               retain=True).wait_for_publish()
+    pub = publishers(cfg)
+    pub.publish_state(estimate())
+    pub.start()
+    with Subscriber(broker.port, [t.device_config]) as sub:
+        sub.wait_for(t.device_config)
+    pub.close()
+    cfg_file = tmp_path / "cfg.yaml"
+    cfg_file.write_text(json.dumps({"device_id": "gone", "mqtt": {"host": "127.0.0.1",
+                                                                  "port": broker.port}}))
+    out = subprocess.run([sys.executable, "-m", "bladesonar", "retire", "--config",
+                          str(cfg_file)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    cleared = json.loads(out.stdout)["cleared"]
+    assert t.device_config in cleared and t.state in cleared and t.availability in cleared
+    with Subscriber(broker.port, ["#"]) as late:
+        time.sleep(0.5)
+        left = sorted(m.topic for m in late.messages if m.retain)
+    assert left == [other], left
+    bad = subprocess.run([sys.executable, "-m", "bladesonar", "retire", "--config",
+                          str(cfg_file), "--timeout", "1"], capture_output=True, text=True,
+                         timeout=60)
+    assert bad.returncode == 0    # nothing left to clear is not an error
+    broker.stop()
+    down = subprocess.run([sys.executable, "-m", "bladesonar", "retire", "--config",
+                           str(cfg_file), "--timeout", "1"], capture_output=True, text=True,
+                          timeout=60)
+    assert down.returncode != 0 and "cannot reach the broker" in down.stderr, down.stderr
+    assert "Traceback" not in down.stderr

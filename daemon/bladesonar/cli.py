@@ -8,11 +8,21 @@ import os
 import sys
 
 from . import __version__
-from .commands import analyze, check_config, plot, reference, report, room, run, simulate
+from .commands import (
+    analyze,
+    check_config,
+    plot,
+    reference,
+    report,
+    retire,
+    room,
+    run,
+    simulate,
+)
 from .errors import BladesonarError
 
 #: The subcommands, in the order ``bladesonar --help`` lists them.
-COMMANDS = (simulate, reference, analyze, plot, report, run, room, check_config)
+COMMANDS = (simulate, reference, analyze, plot, report, run, room, check_config, retire)
 
 
 def build_parser() -> argparse.ArgumentParser:

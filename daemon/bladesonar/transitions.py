@@ -69,10 +69,6 @@ class Direction(str, enum.Enum):  # noqa: UP042  (StrEnum's str() differs: not a
     UNKNOWN = "unknown"
 
 
-#: Event kinds about the fan's motion (the daemon adds ``reference_missing``).
-MOTION_EVENTS = ("started", "stopped", "reversed")
-
-
 @dataclass(frozen=True)
 class TransitionSettings:
     """Tuning of :class:`Transitions` (config ``tracking``)."""

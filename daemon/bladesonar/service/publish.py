@@ -37,13 +37,17 @@ from .messages import (
     Command,
     CommandError,
     Message,
+    RunningHold,
     Topics,
     availability_message,
     clean,
     discovery_messages,
     event_message,
     event_payload,
+    is_legacy_config,
+    migration_messages,
     parse_command,
+    retire_messages,
     state_message,
     state_payload,
     stats_message,
@@ -325,6 +329,11 @@ class MqttPublisher:
         self._subscriptions = [(t, 1) for t in self.topics.commands] if m.commands else []
         if m.discovery:
             self._subscriptions.append((self.topics.ha_status, 1))
+        #: per-entity configs of earlier versions found retained on the broker (topics)
+        self._legacy: set[str] = set()
+        #: mid of the subscription whose SUBACK says the retained legacy configs are in
+        self._discovery_mid: int | None = None
+        self._running = RunningHold()
 
         self._lock = threading.RLock()
         self._events: collections.deque[Message] = collections.deque()
@@ -374,6 +383,7 @@ class MqttPublisher:
         c.on_connect_fail = self._on_connect_fail
         c.on_disconnect = self._on_disconnect
         c.on_message = self._on_message
+        c.on_subscribe = self._on_subscribe
         self.client = c
 
     @property
@@ -396,8 +406,9 @@ class MqttPublisher:
     def publish_state(self, estimate: Estimate | Mapping[str, Any] | None, *,
                       status: str = "ok", detail: str | None = None) -> None:
         """Retained state; while disconnected only the latest is kept."""
+        running = self._running.update(_direction_of(estimate), status, time.monotonic())
         msg = state_message(self.topics, state_payload(estimate, status=status,
-                                                       detail=detail))
+                                                       detail=detail, running=running))
         with self._lock:
             self._state = msg
             if self._connected and not self._closed:
@@ -494,7 +505,7 @@ class MqttPublisher:
                             "oldest events until the broker is back", self._event_cap)
         self._events = collections.deque(merged)
 
-    def _publish_all(self) -> None:
+    def _publish_all(self, discovery: bool = True) -> None:
         """Latest state, status and stats, availability, discovery: what a fresh
         subscriber needs. The retained values go first, so that availability ``online``
         never shows the previous run's state as current."""
@@ -502,8 +513,23 @@ class MqttPublisher:
             if msg is not None:
                 self._send(msg)
         self._send(availability_message(self.topics, True))
-        for msg in self._discovery:
+        if discovery:
+            for msg in self._discovery:
+                self._send(msg)
+
+    def _send_discovery(self) -> None:
+        """The device config, migrating the per-entity configs found on the broker
+        (messages.migration_messages): they are known once the broker acknowledged the
+        subscription made after theirs, as it sends retained messages in order."""
+        found = sorted(self._legacy)
+        self._legacy.clear()
+        before = migration_messages(self.cfg, found, self.topics) if found else []
+        if found:
+            log.info("MQTT: moving %d per-entity discovery configs of an earlier version "
+                     "to one device config (Home Assistant keeps the entities)", len(found))
+        for msg in (*before, *self._discovery):
             self._send(msg)
+        self.client.unsubscribe(self.topics.legacy_configs)
 
     def _take_back_unacked(self) -> None:
         """Before publishing on a new connection: requeue our unacknowledged events and
@@ -551,13 +577,19 @@ class MqttPublisher:
                 self._down_logged = self._drop_logged = False
                 down_s = time.monotonic() - self._down_since if self._down_since else None
                 self._down_since = None
-                self._publish_all()
+                self._publish_all(discovery=False)
                 n_events = len(self._events)
                 while self._events:
                     self._send_event(self._events.popleft())
                 dropped = self._dropped
-            if self._subscriptions:
-                client.subscribe(self._subscriptions)
+                self._legacy.clear()
+                if self._discovery:
+                    # the old configs first (QoS 0: the broker sends what it retains
+                    # right after its SUBACK), then ours, whose SUBACK says they are in
+                    client.subscribe(self.topics.legacy_configs, 0)
+                if self._subscriptions:
+                    _, mid = client.subscribe(self._subscriptions)
+                    self._discovery_mid = mid if self._discovery else None
             if first:
                 log.info("MQTT: connected to %s; availability online", self.where)
             else:
@@ -598,8 +630,23 @@ class MqttPublisher:
                         "background, keeping the latest state and up to %d events",
                         self.where, reason_code, self._event_cap)
 
+    def _on_subscribe(self, client: Any, userdata: Any, mid: int, reason_codes: Any,
+                      properties: Any) -> None:
+        try:
+            with self._lock:
+                if mid != self._discovery_mid or self._closed or not self._connected:
+                    return
+                self._discovery_mid = None
+                self._send_discovery()
+        except Exception:  # noqa: BLE001 - keep the network thread alive
+            log.exception("MQTT: publishing the discovery config failed")
+
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         try:
+            if msg.retain and msg.payload and is_legacy_config(self.topics, msg.topic):
+                with self._lock:
+                    self._legacy.add(msg.topic)
+                return
             if msg.topic in self.topics.commands:
                 self.commands.offer(msg.topic, bytes(msg.payload), bool(msg.retain))
                 return
@@ -631,9 +678,86 @@ class MqttPublisher:
         try:
             with self._lock:
                 if self._connected and not self._closed:
-                    self._publish_all()
+                    # while the old configs are still being looked for, the device
+                    # config waits for them (_send_discovery sends it)
+                    self._publish_all(discovery=self._discovery_mid is None)
         except Exception:  # noqa: BLE001 - a timer thread; log and carry on
             log.exception("MQTT: republishing for Home Assistant failed")
+
+
+def retire(cfg: Any, timeout: float = 10.0) -> list[str]:
+    """Remove the device from Home Assistant and its retained topics from the broker:
+    the device config, any per-entity config of an earlier version, state, status,
+    stats and availability (an empty retained payload each). Run with the daemon
+    stopped (it would announce itself again). The topics cleared out.
+
+    Raises ConfigError (no broker configured) or BladesonarError (the broker cannot be
+    reached or refuses, or does not acknowledge within ``timeout`` s).
+    """
+    from ..errors import BladesonarError
+
+    if cfg.mqtt.host is None:
+        raise ConfigError("mqtt.host", None, "names no broker: there is nothing to retire")
+    pub = MqttPublisher(cfg, close_timeout=timeout)
+    c, topics = pub.client, pub.topics
+    found: set[str] = set()
+    ready = threading.Event()
+    problem: list[str] = []
+    last_mid: list[int] = []
+
+    def on_connect(client: Any, userdata: Any, flags: Any, reason_code: Any,
+                   properties: Any) -> None:
+        if reason_code.is_failure:
+            problem.append(f"the broker refused the connection: {reason_code}")
+            ready.set()
+            return
+        client.subscribe(topics.legacy_configs, 0)
+        last_mid.append(client.subscribe(topics.device_config, 0)[1])
+
+    def on_subscribe(client: Any, userdata: Any, mid: int, reason_codes: Any,
+                     properties: Any) -> None:
+        if last_mid and mid == last_mid[0]:
+            ready.set()     # retained messages of both came before this SUBACK
+
+    def on_message(client: Any, userdata: Any, msg: Any) -> None:
+        if msg.retain and msg.payload and is_legacy_config(topics, msg.topic):
+            found.add(msg.topic)
+
+    c.on_connect, c.on_subscribe, c.on_message = on_connect, on_subscribe, on_message
+    c.on_disconnect = c.on_connect_fail = None
+    try:
+        c.connect(pub.host, pub.port, keepalive=cfg.mqtt.keepalive_s)
+    except OSError as exc:
+        raise BladesonarError(f"cannot reach the broker at {pub.where}: "
+                              f"{exc.strerror or exc}") from None
+    c.loop_start()
+    try:
+        if not ready.wait(timeout) or problem:
+            raise BladesonarError(problem[0] if problem else
+                                  f"the broker at {pub.where} did not answer within "
+                                  f"{timeout:g} s")
+        msgs = [*retire_messages(cfg, topics),
+                *(Message(t, None, qos=1, retain=True) for t in sorted(found))]
+        infos = [c.publish(m.topic, m.encode(), qos=m.qos, retain=m.retain) for m in msgs]
+        end = time.monotonic() + timeout
+        for info in infos:
+            info.wait_for_publish(max(end - time.monotonic(), 0.01))
+        if not all(_acked(i) for i in infos):
+            raise BladesonarError(f"the broker at {pub.where} did not acknowledge the "
+                                  f"removal within {timeout:g} s; run it again")
+        return [m.topic for m in msgs]
+    finally:
+        c.disconnect()
+        c.loop_stop()
+
+
+def _direction_of(estimate: Estimate | Mapping[str, Any] | None) -> str | None:
+    if estimate is None:
+        return None
+    if isinstance(estimate, Mapping):
+        d = estimate.get("direction")
+        return None if d is None else str(d)
+    return str(estimate.direction.value)
 
 
 # -- stdout ------------------------------------------------------------------------------
@@ -653,6 +777,7 @@ class StdoutPublisher:
         self._broken = False
         self._dropped = 0
         self._started = self._closed = False
+        self._running = RunningHold()
 
     def _emit(self, msg: Message) -> None:
         if self._broken:
@@ -676,8 +801,9 @@ class StdoutPublisher:
 
     def publish_state(self, estimate: Estimate | Mapping[str, Any] | None, *,
                       status: str = "ok", detail: str | None = None) -> None:
+        running = self._running.update(_direction_of(estimate), status, time.monotonic())
         self._emit(state_message(self.topics, state_payload(estimate, status=status,
-                                                            detail=detail)))
+                                                            detail=detail, running=running)))
 
     def publish_status(self, fields: dict[str, Any]) -> None:
         self._emit(status_message(self.topics, status_payload(fields)))
@@ -703,4 +829,4 @@ class StdoutPublisher:
 
 
 __all__ = ["CommandInbox", "MqttPublisher", "Publisher", "StdoutPublisher",
-           "make_publisher", "read_password", "tls_files"]
+           "make_publisher", "read_password", "retire", "tls_files"]

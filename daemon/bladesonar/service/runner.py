@@ -25,7 +25,7 @@ from ..errors import BladesonarError, ReferenceMissingError
 from ..io.config_file import load_config
 from ..live import Estimate, LiveAnalyzer
 from ..reference_fit import FitWatch
-from . import learner, memory
+from . import learner, memory, settings_store
 from .audio import AudioIO, PulseBlock
 from .messages import Command, utc_iso
 from .notify import Notifier, NullNotifier
@@ -132,6 +132,11 @@ class Service:
                  reference_loader: Callable[[config_mod.Config], Reference],
                  notifier: Notifier | NullNotifier, max_seconds: float | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
+        #: the config as the file says; self.cfg adds the settings changed from Home
+        #: Assistant (settings_store)
+        self._yaml_cfg = cfg
+        self._settings_path = settings_store.path_for(cfg)
+        cfg, self._stored = settings_store.apply(cfg, settings_store.load(self._settings_path))
         self.cfg = cfg
         self.config_path = config_path
         self.audio_factory = audio_factory
@@ -173,8 +178,13 @@ class Service:
         self._learn_next_try = 0.0
         self._learn_wait = cfg.reference.retry_s
         self._learn_failure: str | None = None
-        #: a direction chosen while there was no reference: given to the next one learned
+        #: a direction chosen while there was no reference, or the rotation the fan had
+        #: when its reference was forgotten: given to the next one learned
         self._pending_direction: str | None = None
+        #: cw/ccw of the last estimate that saw the fan turn (None once it stopped)
+        self._turning_rotation: str | None = None
+        #: why the reference is being learned, for the status detail (a Forget)
+        self._learn_note: str | None = None
         self._learn_why = "command"
         self._job_direction = "unknown"
         self.fit: FitWatch | None = None
@@ -326,6 +336,8 @@ class Service:
                 self.notifier.watchdog()
                 if self._rec is not None:
                     self._rec.rotations[estimate.rotation or "other"] += len(blocks)
+                if estimate.rotating is not None:
+                    self._turning_rotation = estimate.rotation if estimate.rotating else None
                 if now >= self._next_fit:
                     self._next_fit = now + FIT_SAMPLE_S
                     self._sample_fit(now)
@@ -341,6 +353,7 @@ class Service:
                             reference=estimate.reference)
                     self.publisher.publish_state(estimate, status=status,
                                                  detail=None if status == "ok" else detail)
+                    self._publish_status()    # with the state (on change only)
                     done_at = blocks[-1].captured_at     # the period that completed it
                     if done_at is not None:
                         self._latencies.append(self.clock() - done_at)
@@ -441,9 +454,11 @@ class Service:
                 self._reference_problem = problem
                 self._reference_missing = missing
                 if self._learn_allowed():
+                    # the daemon learns one itself: no advice to make one by hand
+                    problem = problem.split("; make one")[0]
+                    self._reference_problem = problem
                     log.info("%s; learning one from the turning fan (reference.%s)",
-                             problem.split("; make one")[0],
-                             "auto_learn" if missing else "auto_relearn")
+                             problem, "auto_learn" if missing else "auto_relearn")
                     self.notifier.status("learning a reference from the turning fan")
                 else:
                     log.error("%s", problem)
@@ -497,17 +512,20 @@ class Service:
 
     def _status(self) -> tuple[str, str | None]:
         """(status, detail) as published: see messages.STATUSES."""
+        note = f"{self._learn_note}; " if self._learn_note else ""
         if self._rec is not None or self.jobs.busy == "learn":
             if self._rec is not None:
-                return "learning", (f"recording {self.cfg.reference.learn_seconds:g} s of "
-                                    "the turning fan for a reference")
-            return "learning", "folding the recording into a reference"
+                return "learning", (f"{note}recording {self.cfg.reference.learn_seconds:g} s "
+                                    "of the turning fan for a reference")
+            return "learning", f"{note}folding the recording into a reference"
         if self.reference is None:
             if self._reference_problem is None:
                 return "starting", None
-            if self._learn_failure is not None and self._learn_allowed():
-                return "learning", (f"waiting for a steady rotation to learn a reference "
-                                    f"(last try: {self._learn_failure})")
+            if self._learn_allowed():
+                if self._learn_failure is not None:
+                    return "learning", (f"{note}waiting for a steady rotation to learn a "
+                                        f"reference (last try: {self._learn_failure})")
+                return "learning", f"{note}waiting to record the turning fan for a reference"
             return ("reference_missing" if self._reference_missing else "reference_invalid",
                     self._reference_problem)
         if self._signal_problem_text is not None:
@@ -519,7 +537,8 @@ class Service:
                 f"{self.fit.moving_s:.0f} s of turning (stale below "
                 f"{self.cfg.reference.stale_fit:g}): the device, the fan or the room changed; "
                 "learn a new reference")
-        if self._last_state is None and not self._ready_sent:
+        if self._last_state is None and not self._ready_sent \
+                and not self.counters.references_learned:
             return "starting", None
         return "ok", None
 
@@ -539,6 +558,7 @@ class Service:
             "fit": None if fit is None else round(fit, 2),
             "learning": (self._rec.why if self._rec is not None else
                          self._learn_why if self.jobs.busy == "learn" else None),
+            "settings": settings_store.current(self.cfg),
         }
         last = self._status_sent
         if last is not None:
@@ -572,6 +592,10 @@ class Service:
             # re-learning a stale reference: only from a fan seen moving now (the motion
             # meter: the stale reference's own answers may well be unknown)
             return
+        if self.reference is not None:
+            f = self.fit.fit if self.fit is not None else None
+            self._learn_note = ("the reference no longer fits the room"
+                                + (f" (fit {f:.2f})" if f is not None else ""))
         self._start_recording("auto" if self.reference is None else "relearn")
 
     def _start_recording(self, why: str) -> None:
@@ -622,6 +646,8 @@ class Service:
                 return
             self._rec = None
             self.jobs.submit("forget", learner.forget, self.cfg.reference_path)
+        elif cmd.name == "setting":
+            self._setting(cmd)
         elif cmd.name == "direction":
             d = cmd.value or "unknown"
             if self.reference is None:
@@ -644,16 +670,7 @@ class Service:
                 self._learned(res)
             elif res.name == "forget":
                 if res.ok:
-                    log.info("reference forgotten%s", f" (kept as {res.value})"
-                             if res.value else "")
-                    self.publisher.publish_event("reference_forgotten", detail=res.value)
-                    self.analyzer = None
-                    self.reference = None
-                    self.fit = None
-                    self._reference_problem = None
-                    self._next_reference_try = 0.0
-                    self._learn_next_try = 0.0
-                    self._learn_wait = self.cfg.reference.retry_s
+                    self._forgotten(res.value)
                 else:
                     log.error("forgetting the reference failed: %s", res.error)
             elif res.name == "direction":
@@ -675,6 +692,56 @@ class Service:
                     self.publisher.publish_event("reference_learn_failed", detail=res.error)
             self._publish_status()
 
+    def _forgotten(self, kept: str | None) -> None:
+        """The reference is gone: one step to learning a new one (or to waiting for the
+        Learn button). The rotation the fan had is carried to the new reference, so the
+        direction chosen for the old one is not lost (unless the fan was not seen
+        turning with a known direction)."""
+        assert self.publisher is not None
+        old = self.reference.meta.get("direction") if self.reference is not None else None
+        log.info("reference forgotten%s", f" (kept as {kept})" if kept else "")
+        self.publisher.publish_event("reference_forgotten", detail=kept)
+        if self._pending_direction is None and old in ("cw", "ccw") \
+                and self._turning_rotation in ("cw", "ccw"):
+            self._pending_direction = self._turning_rotation
+        self.analyzer = None
+        self.reference = None
+        self.fit = None
+        self._last_state = None
+        # the file is gone and that is known: no reference_missing event follows
+        self._reference_problem = ("the reference was forgotten; learn a new one with the "
+                                   "Learn reference button or the learn command")
+        self._reference_missing = True
+        self._reference_sig = self._reference_signature()
+        self._learn_failure = None
+        self._learn_next_try = 0.0
+        self._learn_wait = self.cfg.reference.retry_s
+        self._learn_note = "the reference was forgotten"
+        if self._learn_allowed():
+            self._start_recording("auto")
+
+    def _setting(self, cmd: Command) -> None:
+        """A setting from Home Assistant: checked like the YAML, used at once, stored."""
+        assert cmd.key is not None
+        try:
+            new, stored = settings_store.change(self.cfg, self._yaml_cfg, self._stored,
+                                                cmd.key, cmd.value)
+        except BladesonarError as exc:
+            log.warning("setting from MQTT refused: %s", exc)
+            self._status_sent = None      # republish: Home Assistant shows the value in force
+            return
+        self.cfg, self._stored = new, stored
+        if self.fit is not None:
+            self.fit.stale_fit = self.cfg.reference.stale_fit
+        try:
+            settings_store.save(self._settings_path, stored)
+        except OSError as exc:
+            log.error("the setting reference.%s = %r is used but cannot be stored in %s "
+                      "(%s); it will be lost at the next start", cmd.key, cmd.value,
+                      self._settings_path, exc.strerror or exc)
+        log.info("reference.%s set to %r from MQTT", cmd.key, getattr(self.cfg.reference,
+                                                                      cmd.key))
+
     def _learned(self, res: learner.JobResult) -> None:
         assert self.publisher is not None
         why = self._learn_why
@@ -682,6 +749,7 @@ class Service:
             info = res.value
             self.counters.references_learned += 1
             self._learn_failure = None
+            self._learn_note = None
             self._learn_wait = self.cfg.reference.retry_s
             log.info("reference learned (%s): %s, %.3f Hz, quality %.2f, direction %s", why,
                      info.get("id"), info.get("rate_hz", float("nan")),
@@ -690,10 +758,12 @@ class Service:
                 "reference_learned", reference=info.get("id"), rate_hz=info.get("rate_hz"),
                 quality=info.get("quality"), direction=info.get("direction"), source=why,
                 warnings=info.get("warnings") or [])
-            # the file watch path: read back what was written, new analyzer, re-align
+            # read back what was written, new analyzer, re-align; at once, so that no
+            # status lies between learning and the new reference
             self.analyzer = None
             self._reference_problem = None
-            self._next_reference_try = 0.0
+            self._next_reference_try = self.clock() + REFERENCE_POLL_S
+            self._load_reference()
             return
         self.counters.learn_failures += 1
         self._learn_failure = res.error
@@ -736,6 +806,10 @@ class Service:
             log.error("reload rejected, keeping the running config: %s", exc)
             self.notifier.ready(f"reload rejected: {exc}")
             return
+        self._yaml_cfg = new
+        new, self._stored = settings_store.apply(
+            new, settings_store.load(settings_store.path_for(new)))
+        self._settings_path = settings_store.path_for(new)
         old, self.cfg = self.cfg, new
         if (old.audio, old.waveform, old.sim) != (new.audio, new.waveform, new.sim):
             self._close_audio()
