@@ -14,6 +14,7 @@ from bladesonar import __version__, config
 from bladesonar.dsp.decide import Decision
 from bladesonar.live import Estimate
 from bladesonar.service import messages as M
+from bladesonar.service import publish
 from bladesonar.transitions import Direction
 
 T0 = 1_700_000_000.25  # 2023-11-14T22:13:20.250Z
@@ -515,6 +516,8 @@ def test_state_templates_give_words_for_people_and_none_when_not_known():
     hold = M.RunningHold()
     confirming = Estimate(Direction("unknown"), None, 0.01, 0.004, 0.24, None, None,
                           0.5, "confirming a stop", 4.0, "ab")
+    doubt = Estimate(Direction("unknown"), None, None, 0.4, 24.0, "settled", None, 0.3,
+                     "direction in doubt", 4.0, "ab", turning=True)
     cases = [
         (_estimate("unknown", None, None), {"rotation": "None", "direction": "None",
                                             "rotating": "None", "rate": "None",
@@ -532,9 +535,14 @@ def test_state_templates_give_words_for_people_and_none_when_not_known():
         (_estimate("stopped", None, 0.0), {"rotation": "stopped", "direction": "stopped",
                                            "rotating": "OFF", "rate": "0.0", "rpm": "0"}),
         (confirming, {"rotating": "OFF", "rpm": "None", "rate": "None"}),
+        # turning with the direction in doubt (a room whose wall echoes are weak): the
+        # speed is known, Running is on, the direction and the rotation are not
+        (doubt, {"rotation": "None", "direction": "None", "rotating": "ON", "rpm": "24.0",
+                 "rate": "0.4", "confidence": "None"}),
+        (confirming, {"rotating": "ON", "rpm": "None"}),
     ]
     for i, (est, want) in enumerate(cases):
-        running = hold.update(est.direction.value, "ok", float(i))
+        running = hold.update(publish._direction_of(est), "ok", float(i))
         got = states_of(M.state_payload(est, t=T0, running=running), "state")
         for k, v in want.items():
             assert got[k] == v, (i, est.direction, k, got[k])

@@ -266,8 +266,9 @@ class RunningHold:
         self._unknown_since: float | None = None
 
     def update(self, direction: str | None, status: str, now: float) -> bool | None:
-        """The held value after an answer of ``direction`` at monotonic time ``now``."""
-        if direction in ("same", "reversed", "stopped"):
+        """The held value after an answer of ``direction`` at monotonic time ``now``
+        (``turning``: turning, its direction in doubt, see :func:`motion_of`)."""
+        if direction in ("same", "reversed", "stopped", "turning"):
             self.value = direction != "stopped"
             self._unknown_since = None
         elif status not in HOLD_STATUSES:
@@ -457,11 +458,13 @@ def _stat(key: str, expr: str = "v") -> str:
 
 
 def _when_known(key: str, expr: str, stopped: str) -> str:
-    """A number of the state that exists only while the direction is known: ``expr``
-    while turning, ``stopped`` when stopped, else ``None`` (never a 0 that means
-    nothing)."""
+    """A number of the state that exists only while the fan is known to turn (its
+    direction known, or in doubt with the speed known: ``rotating`` true) or to rest:
+    ``expr`` while turning, ``stopped`` when stopped, else ``None`` (never a 0 that
+    means nothing)."""
     return ("{% set d = value_json.direction %}"
-            f"{{% if d in ['same', 'reversed'] and value_json.{key} is not none %}}"
+            "{% if (d in ['same', 'reversed'] or (d == 'unknown' and value_json.rotating))"
+            f" and value_json.{key} is not none %}}"
             f"{{{{ {expr} }}}}{{% elif d == 'stopped' %}}{stopped}"
             "{% else %}None{% endif %}")
 

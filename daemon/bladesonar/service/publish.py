@@ -752,12 +752,18 @@ def retire(cfg: Any, timeout: float = 10.0) -> list[str]:
 
 
 def _direction_of(estimate: Estimate | Mapping[str, Any] | None) -> str | None:
+    """The answer's direction for RunningHold; ``turning`` for a fan known to turn whose
+    direction is in doubt (``rotating`` true with the direction unknown)."""
     if estimate is None:
         return None
     if isinstance(estimate, Mapping):
         d = estimate.get("direction")
-        return None if d is None else str(d)
-    return str(estimate.direction.value)
+        rotating = estimate.get("rotating")
+    else:
+        d, rotating = estimate.direction.value, estimate.rotating
+    if d == "unknown" and rotating:
+        return "turning"
+    return None if d is None else str(d)
 
 
 # -- stdout ------------------------------------------------------------------------------
