@@ -161,11 +161,11 @@ def _run(args: argparse.Namespace) -> int:
     import json
 
     from .. import config
-    from ..io.scene_file import load_scene
+    from ..io.scene_file import load_any_scene
     from ..io.truth import truth_path
 
     cfg = config.load(args.config)
-    sim = _simulator(args, cfg, load_scene(args.scene))
+    sim = _simulator(args, cfg, load_any_scene(args.scene))
     meta = sim.prepare(args.seconds)
     out = Path(args.out)
     wav, truth = _write_recording(args, cfg, sim, meta, out)
