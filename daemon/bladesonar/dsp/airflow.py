@@ -20,7 +20,8 @@ The stage, on drift-aligned gated pulses (dsp/pulses.py):
 2. the envelope of what is left (top of the band dropped, where the fractional shift is
    least exact), each range weighted down where the static room is strong against the
    moving echoes, and its own two-sided mean removed;
-3. the cross-correlation of each pulse's envelope with the next ones' (lags ``LAGS``)
+3. the cross-correlation of each pulse's envelope with the next ones' (lags 1, 2, ...
+   while the moving echoes stay alike)
    over shifts up to ``MAX_SHIFT`` samples, weighted by the shift (its first moment:
    sub-sample shifts count, so slow fans are seen): negative for echoes that approach;
 4. its strength against its own noise: the pulses' contributions summed in blocks, the
@@ -41,13 +42,21 @@ from .analytic import analytic_magnitude
 from .fingerprint import envelope_features
 from .rangedoppler import band_limited
 
-#: Lags (pulses) of the correlation: 1 and 2. Longer lags mix in the next blade's glint on
-#: fast fans (a 5-blade fan at 1.4 Hz repeats every 5 pulses) and turned the sign there.
-LAGS = (1, 2)
+#: Lags (pulses) of the correlation: 1, 2 always, then more while the moving echoes at
+#: that lag still correlate ``ALIKE`` of what they do at lag 1 (their best match over the
+#: shifts), up to ``MAX_LAG``: a slow fan's glint lasts many pulses and moves a fraction
+#: of a sample per pulse, so its longer lags carry the shift; a fast fan's is gone after
+#: a pulse or two, and its longer lags met the next blade's glint (a 5-blade fan at
+#: 1.4 Hz repeats every 5 pulses), which turned the sign on 1 of 80 tuning scenes with
+#: 24 fixed lags.
+MIN_LAGS = 2
+MAX_LAG = 16
+#: The longest lag's expected shift, samples: lags 1 .. SPAN / (lag-1 shift).
+SPAN = 8.0
 #: Largest shift between two pulses' envelopes weighed, samples: a blade tip 0.9 m out at
 #: 1.6 Hz pitched 18 degrees moves its glint 21 samples (two-way) per pulse at 34 Hz;
 #: 40 let the neighbouring glints in and turned the sign on 4 of 80 tuning scenes.
-MAX_SHIFT = 24
+MAX_SHIFT = 48
 #: Pulses per block of the noise estimate (about 0.5 s).
 BLOCK = 16
 #: Fewest blocks (of valid pulse pairs) that are called at all: about 4 s at 34 Hz.
@@ -74,16 +83,19 @@ class Airflow:
     """erf(|t| / (CALL_T * sqrt(2))): 0.68 at the calling threshold, 0.997 at 3 times it."""
     t: float
     """The asymmetry over its standard error; + means receding echoes (up)."""
-    asymmetry: float
-    """The shift-weighted correlation over its absolute sum, -1..1, + = up."""
+    shift: float
+    """The strongest moving echoes' range shift, samples (two-way delay) per pulse;
+    + = receding (up)."""
     pulses: int
     """Valid pulses used."""
     reason: str
+    lags: int = 0
+    """Lags of the correlation used (1 .. lags)."""
 
     def as_dict(self) -> dict[str, object]:
         return dict(airflow=self.airflow, airflow_confidence=round(self.confidence, 4),
-                    airflow_t=round(self.t, 2), airflow_asymmetry=round(self.asymmetry, 4),
-                    airflow_reason=self.reason)
+                    airflow_t=round(self.t, 2), airflow_shift=round(self.shift, 4),
+                    airflow_lags=self.lags, airflow_reason=self.reason)
 
 
 def two_sided_mean(x: np.ndarray, keep: np.ndarray, alpha: float) -> np.ndarray:
@@ -148,61 +160,78 @@ def envelope_image(res: np.ndarray, ok: np.ndarray, static: np.ndarray, prf: flo
         if moving > 0:
             env *= 1.0 / (1.0 + (s_env / (STATIC_WEIGHT * moving)) ** 2)[None, :]
     alpha = min(1.0, 1.0 / (ENVELOPE_S * prf))
-    d = env - two_sided_mean(env, ok, alpha)
+    d: np.ndarray = env - two_sided_mean(env, ok, alpha)
     d[~ok] = 0.0
     return d
 
 
-def shift_moments(d: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Step 3: per pulse k, the shift-weighted sum (odd moment) and the absolute sum of
-    the cross-correlations of envelope k with k + lag, lags ``LAGS``, shifts up to
-    ``MAX_SHIFT``. (n,) each; the odd moment is positive for echoes moving out."""
+def block_correlations(d: np.ndarray, ok: np.ndarray, lag: int) -> np.ndarray:
+    """The cross-correlation of each usable pulse's envelope with the one ``lag`` pulses
+    later, shifts -MAX_SHIFT..MAX_SHIFT, summed over blocks of ``BLOCK`` pulses:
+    (blocks, 2 MAX_SHIFT + 1); shift s > 0 means the later pulse's echoes lie further
+    out."""
     n, L = d.shape
-    odd, tot = np.zeros(n), np.zeros(n)
-    if n < 2:
-        return odd, tot
+    nb = max(1, -(-n // BLOCK))
+    out = np.zeros((nb, 2 * MAX_SHIFT + 1))
+    if lag >= n:
+        return out
     nfft = 1 << int(math.ceil(math.log2(2 * L)))
     F = np.fft.rfft(d, n=nfft, axis=1)
-    s = np.arange(-MAX_SHIFT, MAX_SHIFT + 1, dtype=np.float64)
-    w = s / MAX_SHIFT
-    for lag in LAGS:
-        if lag >= n:
-            continue
-        cc = np.fft.irfft(np.conj(F[:-lag]) * F[lag:], n=nfft, axis=1)
-        cc = np.concatenate([cc[:, -MAX_SHIFT:], cc[:, :MAX_SHIFT + 1]], axis=1)
-        both = ok[:-lag] & ok[lag:]
-        odd[:n - lag] += np.where(both, cc @ w, 0.0)
-        tot[:n - lag] += np.where(both, np.abs(cc).sum(axis=1), 0.0)
-    return odd, tot
+    cc = np.fft.irfft(np.conj(F[:-lag]) * F[lag:], n=nfft, axis=1)
+    cc = np.concatenate([cc[:, -MAX_SHIFT:], cc[:, :MAX_SHIFT + 1]], axis=1)
+    both = ok[:-lag] & ok[lag:]
+    k = np.nonzero(both)[0]
+    np.add.at(out, k // BLOCK, cc[k])
+    return out
 
 
-def decide(odd: np.ndarray, tot: np.ndarray, pairs: np.ndarray) -> Airflow:
-    """Step 4: the asymmetry, its t statistic over blocks of ``BLOCK`` pulses and the
-    call. ``pairs``: pulses with a valid successor (those that contribute)."""
-    used = int(np.count_nonzero(pairs))
-    idx = np.nonzero(pairs)[0]
-    nb = len(idx) // BLOCK
-    total = float(tot.sum())
-    if nb < MIN_BLOCKS or total <= 0:
+def peak_shift(c: np.ndarray) -> float:
+    """Sub-sample position of the largest value of ``c`` (shifts -MAX_SHIFT..MAX_SHIFT),
+    by a parabola through it and its neighbours."""
+    i = int(np.argmax(c))
+    if 0 < i < len(c) - 1:
+        a, b, e = float(c[i - 1]), float(c[i]), float(c[i + 1])
+        den = a - 2.0 * b + e
+        frac = 0.5 * (a - e) / den if den < 0 else 0.0
+        return i - MAX_SHIFT + max(-0.5, min(0.5, frac))
+    return float(i - MAX_SHIFT)
+
+
+def glint_speed(per_lag: list[np.ndarray], drop: int | None = None) -> float:
+    """Samples per pulse of the strongest moving echoes: the correlation peaks at lags
+    1..len(per_lag) fitted by speed * lag through zero (block ``drop`` left out)."""
+    num = 0.0
+    for lag, blocks in enumerate(per_lag, start=1):
+        c = blocks.sum(axis=0) if drop is None else blocks.sum(axis=0) - blocks[drop]
+        num += lag * peak_shift(c)
+    den = sum(lag * lag for lag in range(1, len(per_lag) + 1))
+    return num / den
+
+
+def decide(per_lag: list[np.ndarray], used: int) -> Airflow:
+    """Step 4: the glint speed, its standard error by the jackknife over blocks, the
+    call."""
+    live = np.nonzero(per_lag[0].any(axis=1))[0]
+    nb = len(live)
+    lags = len(per_lag)
+    if nb < MIN_BLOCKS:
         return Airflow("unknown", 0.0, 0.0, 0.0, used,
-                       f"too short: {len(idx)} usable pulse pairs, {MIN_BLOCKS * BLOCK} "
-                       "needed")
-    o = odd[idx[:nb * BLOCK]].reshape(nb, BLOCK).sum(axis=1)
-    t = tot[idx[:nb * BLOCK]].reshape(nb, BLOCK).sum(axis=1)
-    a = float(o.sum() / max(float(t.sum()), 1e-300))
-    r = o - a * t
-    se = math.sqrt(float(np.sum(r * r)) * nb / (nb - 1)) / max(float(t.sum()), 1e-300)
-    ts = a / se if se > 0 else 0.0
+                       f"too short: {nb} blocks of {BLOCK} usable pulse pairs, "
+                       f"{MIN_BLOCKS} needed", lags)
+    v = glint_speed(per_lag)
+    jack = np.array([glint_speed(per_lag, int(b)) for b in live])
+    se = math.sqrt((nb - 1) / nb * float(np.sum((jack - jack.mean()) ** 2)))
+    ts = v / se if se > 0 else 0.0
     conf = math.erf(abs(ts) / (CALL_T * math.sqrt(2.0)))
     if abs(ts) < CALL_T:
-        return Airflow("unknown", conf, ts, a, used,
-                       f"asymmetry {a:+.4f} is {abs(ts):.1f} standard errors from zero, "
-                       f"{CALL_T:g} needed (fan at rest, too slow, or the sensor near "
-                       "its axis)")
+        return Airflow("unknown", conf, ts, v, used,
+                       f"glint shift {v:+.3f} samples per pulse is {abs(ts):.1f} standard "
+                       f"errors from zero, {CALL_T:g} needed (fan at rest, too slow, or "
+                       "the sensor near its axis)", lags)
     word = "up" if ts > 0 else "down"
-    return Airflow(word, conf, ts, a, used,
-                   f"echoes {'recede' if ts > 0 else 'approach'} at their glints: "
-                   f"asymmetry {a:+.4f}, {abs(ts):.1f} standard errors")
+    return Airflow(word, conf, ts, v, used,
+                   f"glints {'recede' if ts > 0 else 'approach'} by {abs(v):.3f} samples "
+                   f"per pulse, {abs(ts):.1f} standard errors", lags)
 
 
 def measure(pulses: np.ndarray, valid: np.ndarray, prf: float) -> Airflow:
@@ -219,7 +248,8 @@ def measure(pulses: np.ndarray, valid: np.ndarray, prf: float) -> Airflow:
                        "too short: fewer than 2 usable pulses")
     res, ok, static = moving_part(x, ok, prf)
     d = envelope_image(res, ok, static, prf)
-    odd, tot = shift_moments(d, ok)
-    pairs = np.zeros(len(ok), bool)
-    pairs[:-1] = ok[:-1] & ok[1:]
-    return decide(odd, tot, pairs)
+    first = block_correlations(d, ok, 1)
+    speed = abs(peak_shift(first.sum(axis=0)))
+    lags = int(min(MAX_LAG, max(MIN_LAGS, SPAN // max(speed, 0.5))))
+    per_lag = [first] + [block_correlations(d, ok, lag) for lag in range(2, lags + 1)]
+    return decide(per_lag, int(np.count_nonzero(ok)))
