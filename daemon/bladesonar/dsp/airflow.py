@@ -51,8 +51,11 @@ from .rangedoppler import band_limited
 #: 24 fixed lags.
 MIN_LAGS = 2
 MAX_LAG = 16
-#: The longest lag's expected shift, samples: lags 1 .. SPAN / (lag-1 shift).
+#: The longest lag's expected shift, samples: lags 1 .. SPAN / (lag-1 shift), and 2 at
+#: least while twice the lag-1 shift stays under FIT_SHIFT (a fast far fan's lag-2 peak
+#: at the window's edge fell on a neighbouring blade's echo and turned the sign).
 SPAN = 8.0
+FIT_SHIFT = 36.0
 #: Largest shift between two pulses' envelopes weighed, samples: a blade tip 0.9 m out at
 #: 1.6 Hz pitched 18 degrees moves its glint 21 samples (two-way) per pulse at 34 Hz;
 #: 40 let the neighbouring glints in and turned the sign on 4 of 80 tuning scenes.
@@ -61,6 +64,9 @@ MAX_SHIFT = 48
 BLOCK = 16
 #: Fewest blocks (of valid pulse pairs) that are called at all: about 4 s at 34 Hz.
 MIN_BLOCKS = 8
+#: Random halves of the blocks the standard error comes from (fixed seed: the same
+#: recording gives the same answer).
+HALVES = 32
 #: |t| at and above which the airflow is called.
 CALL_T = 3.0
 #: Time constants of the two-sided means: the static room and the envelope's slow part, s.
@@ -185,10 +191,15 @@ def block_correlations(d: np.ndarray, ok: np.ndarray, lag: int) -> np.ndarray:
     return out
 
 
-def peak_shift(c: np.ndarray) -> float:
+def peak_shift(c: np.ndarray, near: float | None = None, half: float = 0.0) -> float:
     """Sub-sample position of the largest value of ``c`` (shifts -MAX_SHIFT..MAX_SHIFT),
-    by a parabola through it and its neighbours."""
-    i = int(np.argmax(c))
+    by a parabola through it and its neighbours; with ``near``, the largest within
+    ``half`` samples of that shift."""
+    s = np.arange(-MAX_SHIFT, MAX_SHIFT + 1)
+    look = np.asarray(c, dtype=np.float64)
+    if near is not None:
+        look = np.where(np.abs(s - near) <= half, look, -np.inf)
+    i = int(np.argmax(look))
     if 0 < i < len(c) - 1:
         a, b, e = float(c[i - 1]), float(c[i]), float(c[i + 1])
         den = a - 2.0 * b + e
@@ -197,20 +208,34 @@ def peak_shift(c: np.ndarray) -> float:
     return float(i - MAX_SHIFT)
 
 
-def glint_speed(per_lag: list[np.ndarray], drop: int | None = None) -> float:
-    """Samples per pulse of the strongest moving echoes: the correlation peaks at lags
-    1..len(per_lag) fitted by speed * lag through zero (block ``drop`` left out)."""
-    num = 0.0
+def lag_peaks(per_lag: list[np.ndarray], keep: np.ndarray | None = None) -> list[float]:
+    """The correlation peak at each lag (blocks ``keep`` only): at lag 1 the largest
+    over all shifts, at lag n the largest within half of n times that shift (3 samples
+    at least) of n times it, where the same echoes should be."""
+    peaks: list[float] = []
     for lag, blocks in enumerate(per_lag, start=1):
-        c = blocks.sum(axis=0) if drop is None else blocks.sum(axis=0) - blocks[drop]
-        num += lag * peak_shift(c)
-    den = sum(lag * lag for lag in range(1, len(per_lag) + 1))
-    return num / den
+        c = blocks.sum(axis=0) if keep is None else blocks[keep].sum(axis=0)
+        if lag == 1:
+            peaks.append(peak_shift(c))
+        else:
+            guess = lag * peaks[0]
+            peaks.append(peak_shift(c, guess, max(3.0, 0.5 * abs(guess))))
+    return peaks
+
+
+def glint_speed(per_lag: list[np.ndarray], keep: np.ndarray | None = None) -> float:
+    """Samples per pulse of the strongest moving echoes: the correlation peaks at lags
+    1..len(per_lag) (:func:`lag_peaks`) fitted by speed * lag through zero."""
+    peaks = lag_peaks(per_lag, keep)
+    num = sum(lag * p for lag, p in enumerate(peaks, start=1))
+    return num / sum(lag * lag for lag in range(1, len(peaks) + 1))
 
 
 def decide(per_lag: list[np.ndarray], used: int) -> Airflow:
-    """Step 4: the glint speed, its standard error by the jackknife over blocks, the
-    call."""
+    """Step 4: the glint speed, its standard error from ``HALVES`` random halves of the
+    blocks (their scatter; a half holds half the data, so its estimates scatter as the
+    whole's would with twice the noise, and the delete-half jackknife takes their spread
+    as the whole's standard error), the call."""
     live = np.nonzero(per_lag[0].any(axis=1))[0]
     nb = len(live)
     lags = len(per_lag)
@@ -219,8 +244,18 @@ def decide(per_lag: list[np.ndarray], used: int) -> Airflow:
                        f"too short: {nb} blocks of {BLOCK} usable pulse pairs, "
                        f"{MIN_BLOCKS} needed", lags)
     v = glint_speed(per_lag)
-    jack = np.array([glint_speed(per_lag, int(b)) for b in live])
-    se = math.sqrt((nb - 1) / nb * float(np.sum((jack - jack.mean()) ** 2)))
+    peaks = lag_peaks(per_lag)
+    if any(p * v < 0 and abs(p) > 1.0 for p in peaks):
+        return Airflow("unknown", 0.0, 0.0, v, used,
+                       "the lags disagree: correlation peaks at "
+                       + ", ".join(f"{p:+.1f}" for p in peaks) + " samples", lags)
+    # half-samples of the blocks (the delete-half jackknife: a peak's position is not a
+    # smooth statistic, and leaving one block out left a noise peak where it was, so the
+    # delete-one jackknife called white noise with t of 30)
+    rng = np.random.default_rng(0)
+    half = np.array([glint_speed(per_lag, rng.permutation(live)[: nb // 2])
+                     for _ in range(HALVES)])
+    se = float(np.std(half))
     ts = v / se if se > 0 else 0.0
     conf = math.erf(abs(ts) / (CALL_T * math.sqrt(2.0)))
     if abs(ts) < CALL_T:
@@ -250,6 +285,8 @@ def measure(pulses: np.ndarray, valid: np.ndarray, prf: float) -> Airflow:
     d = envelope_image(res, ok, static, prf)
     first = block_correlations(d, ok, 1)
     speed = abs(peak_shift(first.sum(axis=0)))
-    lags = int(min(MAX_LAG, max(MIN_LAGS, SPAN // max(speed, 0.5))))
+    lags = int(min(MAX_LAG, max(1, SPAN // max(speed, 0.5))))
+    if lags < MIN_LAGS and MIN_LAGS * speed <= FIT_SHIFT:
+        lags = MIN_LAGS
     per_lag = [first] + [block_correlations(d, ok, lag) for lag in range(2, lags + 1)]
     return decide(per_lag, int(np.count_nonzero(ok)))
