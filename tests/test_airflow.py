@@ -3,18 +3,21 @@ input, and truth from simulated 3-D scenes (the physics in sim/geometry3d.py).""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from bladesonar import config, waveform
+from bladesonar import cli, config, waveform
 from bladesonar.airflow_recording import recording_airflow
 from bladesonar.dsp import airflow as af
 from bladesonar.sim import random_scene
 from bladesonar.sim.render import simulate
 
 PRF = 44100.0 / 1297
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def streaks(n: int, v: float, *, L: int = 600, noise: float = 0.02, seed: int = 0,
@@ -121,3 +124,43 @@ def test_reversing_the_fan_reverses_the_call():
     _, b = _run(4, schedule=rev)
     assert {a.airflow, b.airflow} == {"down", "up"}
     assert math.copysign(1, a.t) != math.copysign(1, b.t)
+
+
+def _sim_wav(tmp_path, schedule: str, seconds: float = 8.0):
+    out = tmp_path / "fan.wav"
+    rc = cli.main(["simulate", "--scene", str(ROOT / "config/scenes/living-room-3d.yaml"),
+                   "--seconds", str(seconds), "--schedule", schedule, "--snr-db", "12",
+                   "--drift-ppm", "60", "--seed", "5", "--no-paths", "--out", str(out),
+                   "--quiet"])
+    assert rc == 0
+    return out
+
+
+@pytest.mark.slow
+def test_analyze_without_a_reference_prints_the_airflow(tmp_path, capsys):
+    wav = _sim_wav(tmp_path, "cw:0.6:8~2")          # + pitch turning cw: up
+    capsys.readouterr()
+    assert cli.main(["analyze", str(wav)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["airflow"] == "up" and out["airflow_rotation"] == "cw"
+    assert 0.68 <= out["airflow_confidence"] <= 1.0
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("scene:\n  downdraft_rotation: cw\n")
+    assert cli.main(["analyze", "--config", str(cfg), str(wav)]) == 0
+    assert json.loads(capsys.readouterr().out)["airflow_rotation"] == "ccw"
+    assert cli.main(["analyze", "--track", str(wav)]) == 2
+    assert "--reference" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_independent_3d_sample_gives_its_airflow(capsys):
+    # another simulator's recordings (its fan blows down turning ccw seen from below):
+    # the reference turned ccw, the probe cw
+    from conftest import require_shared_sample
+    d = require_shared_sample()
+    truth = json.loads((d / "truth.json").read_text())
+    for name, key in (("reference.wav", "reference"), ("probe.wav", "probe")):
+        assert cli.main(["analyze", "--config", str(d / "config.yaml"), str(d / name)]) == 0
+        out = json.loads(capsys.readouterr().out)
+        assert out["airflow_rotation"] == truth[key]["rotation"], out
+        assert out["airflow"] == ("down" if truth[key]["rotation"] == "ccw" else "up")

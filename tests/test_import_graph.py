@@ -10,6 +10,7 @@ from pathlib import Path
 PKG = "bladesonar"
 #: modules of pure computation (no I/O) and the edges they must never import
 PURE = ("bladesonar.waveform", "bladesonar.dsp", "bladesonar.sim", "bladesonar.analysis",
+        "bladesonar.airflow_recording",
         "bladesonar.schema", "bladesonar.transitions", "bladesonar.live",
         "bladesonar.imaging", "bladesonar.reference_fit")
 EDGES = ("bladesonar.io", "bladesonar.service", "bladesonar.commands", "bladesonar.plots",
