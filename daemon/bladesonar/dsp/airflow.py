@@ -20,14 +20,13 @@ The stage, on drift-aligned gated pulses (dsp/pulses.py):
 2. the envelope of what is left (top of the band dropped, where the fractional shift is
    least exact), each range weighted down where the static room is strong against the
    moving echoes, and its own two-sided mean removed;
-3. the cross-correlation of each pulse's envelope with the next ones' (lags 1, 2, ...
-   while the moving echoes stay alike)
-   over shifts up to ``MAX_SHIFT`` samples, weighted by the shift (its first moment:
-   sub-sample shifts count, so slow fans are seen): negative for echoes that approach;
-4. its strength against its own noise: the pulses' contributions summed in blocks, the
-   ratio estimate's standard error from the blocks' scatter, a t statistic. A fan at rest,
-   noise, reverberation and the static room's residue give contributions of either sign
-   that average out; ``|t| >= CALL_T`` calls the airflow.
+3. the cross-correlation of each pulse's envelope with the next one's, summed over blocks:
+   its peak is the shift of the strongest moving echoes (sub-sample, by a parabola);
+   longer lags, while lag times that shift stays under ``SPAN`` samples, are searched
+   near lag times it and fitted by a line through zero (slow fans move a fraction of a
+   sample per pulse but several samples over ten pulses); a call needs two lags;
+4. the shift's standard error from random halves of the blocks, t = shift / error;
+   ``|t| >= CALL_T`` calls the airflow, lags that disagree in sign give unknown.
 """
 
 from __future__ import annotations
@@ -42,23 +41,24 @@ from .analytic import analytic_magnitude
 from .fingerprint import envelope_features
 from .rangedoppler import band_limited
 
-#: Lags (pulses) of the correlation: 1, 2 always, then more while the moving echoes at
-#: that lag still correlate ``ALIKE`` of what they do at lag 1 (their best match over the
-#: shifts), up to ``MAX_LAG``: a slow fan's glint lasts many pulses and moves a fraction
-#: of a sample per pulse, so its longer lags carry the shift; a fast fan's is gone after
-#: a pulse or two, and its longer lags met the next blade's glint (a 5-blade fan at
-#: 1.4 Hz repeats every 5 pulses), which turned the sign on 1 of 80 tuning scenes with
-#: 24 fixed lags.
+#: Lags (pulses) of the correlation: at least MIN_LAGS for a call, at most MAX_LAG. A
+#: slow fan's glint lasts many pulses and moves a fraction of a sample per pulse, so its
+#: longer lags carry the shift; a fast fan's is gone after a pulse or two, and 24 fixed
+#: lags met the next blade's glint there (a 5-blade fan at 1.4 Hz repeats every 5
+#: pulses), which turned the sign on 1 of 80 tuning scenes.
 MIN_LAGS = 2
 MAX_LAG = 16
 #: The longest lag's expected shift, samples: lags 1 .. SPAN / (lag-1 shift), and 2 at
-#: least while twice the lag-1 shift stays under FIT_SHIFT (a fast far fan's lag-2 peak
-#: at the window's edge fell on a neighbouring blade's echo and turned the sign).
+#: least while twice the lag-1 shift stays under FIT_SHIFT. A call needs the motion seen
+#: at two lags: on the tuning set's fans at rest the only calls (2 of 100, t 3.8 and 4.4)
+#: were single-lag peaks of noise 36-37 samples out, faster than any glint (21 samples
+#: per pulse at most); a lag-2 peak is searched near twice the lag-1 shift, within the
+#: window.
 SPAN = 8.0
-FIT_SHIFT = 36.0
-#: Largest shift between two pulses' envelopes weighed, samples: a blade tip 0.9 m out at
-#: 1.6 Hz pitched 18 degrees moves its glint 21 samples (two-way) per pulse at 34 Hz;
-#: 40 let the neighbouring glints in and turned the sign on 4 of 80 tuning scenes.
+FIT_SHIFT = 46.0
+#: Largest shift between two pulses' envelopes looked at, samples: a blade tip 0.9 m out
+#: at 1.6 Hz pitched 18 degrees moves its glint 21 samples (two-way) per pulse at 34 Hz,
+#: 42 at lag 2.
 MAX_SHIFT = 48
 #: Pulses per block of the noise estimate (about 0.5 s).
 BLOCK = 16
@@ -88,7 +88,7 @@ class Airflow:
     confidence: float
     """erf(|t| / (CALL_T * sqrt(2))): 0.68 at the calling threshold, 0.997 at 3 times it."""
     t: float
-    """The asymmetry over its standard error; + means receding echoes (up)."""
+    """The shift over its standard error; + means receding echoes (up)."""
     shift: float
     """The strongest moving echoes' range shift, samples (two-way delay) per pulse;
     + = receding (up)."""
@@ -288,5 +288,9 @@ def measure(pulses: np.ndarray, valid: np.ndarray, prf: float) -> Airflow:
     lags = int(min(MAX_LAG, max(1, SPAN // max(speed, 0.5))))
     if lags < MIN_LAGS and MIN_LAGS * speed <= FIT_SHIFT:
         lags = MIN_LAGS
+    if lags < MIN_LAGS:
+        return Airflow("unknown", 0.0, 0.0, speed, int(np.count_nonzero(ok)),
+                       f"the strongest moving echoes shift {speed:.1f} samples per pulse, "
+                       "too fast to be confirmed at a second lag", 1)
     per_lag = [first] + [block_correlations(d, ok, lag) for lag in range(2, lags + 1)]
     return decide(per_lag, int(np.count_nonzero(ok)))
