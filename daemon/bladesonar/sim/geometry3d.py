@@ -81,6 +81,17 @@ def sensor_images(scene: Scene3D) -> SensorImages:
     return SensorImages(first, np.asarray(second), np.asarray(pairs, dtype=np.int64))
 
 
+def max_path_m(scene: Scene3D) -> float:
+    """An upper bound of every path's length (the renderer's look-back), m."""
+    S, C = np.asarray(scene.sensor), np.asarray(scene.fan_centre)
+    imgs = sensor_images(scene)
+    far_fan = float(np.max(np.linalg.norm(imgs.first - C, axis=1))) + scene.tip_radius_m
+    near_fan = float(np.linalg.norm(S - C)) + scene.tip_radius_m
+    walls = float(np.max(np.linalg.norm(np.concatenate([imgs.first, imgs.second]) - S,
+                                        axis=1)))
+    return max(walls, near_fan + far_fan, 2 * near_fan)
+
+
 def _axis(surface: int) -> int:
     return 2 if surface >= 4 else surface // 2
 
@@ -221,5 +232,5 @@ def paths(scene: Scene3D, fan_angle_rad: float, *, wall_bounces: bool = True) ->
                       wall_bounces=wall_bounces).row(0)
 
 
-__all__ = ["FAN_KINDS", "KINDS", "SURFACES", "Plates", "path_table", "paths", "plate_echo",
-           "sensor_images"]
+__all__ = ["FAN_KINDS", "KINDS", "SURFACES", "Plates", "max_path_m", "path_table", "paths",
+           "plate_echo", "sensor_images"]

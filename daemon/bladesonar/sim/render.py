@@ -257,7 +257,7 @@ class Simulator:
 
     def _max_delay_samples(self) -> float:
         if isinstance(self.scene, Scene3D):
-            return self.scene.max_path_m() / self.c * self.fs + 1.0
+            return float(self.geo.max_path_m(self.scene)) / self.c * self.fs + 1.0
         s = self.scene
         S, C = np.asarray(s.sensor), np.asarray(s.fan_centre)
         delta = np.sum((S - s.wall_a) * s.wall_normals, axis=1)

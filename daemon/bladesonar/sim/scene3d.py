@@ -108,17 +108,6 @@ class Scene3D:
         return [list(self.size), list(self.surface_reflection), list(self.sensor),
                 list(self.fan_centre)]
 
-    def max_path_m(self) -> float:
-        """An upper bound of every path's length (the renderer's look-back), m."""
-        from .geometry3d import sensor_images
-        S, C = np.asarray(self.sensor), np.asarray(self.fan_centre)
-        imgs = sensor_images(self)
-        far_fan = float(np.max(np.linalg.norm(imgs.first - C, axis=1))) + self.tip_radius_m
-        near_fan = float(np.linalg.norm(S - C)) + self.tip_radius_m
-        walls = float(np.max(np.linalg.norm(np.concatenate([imgs.first, imgs.second]) - S,
-                                            axis=1)))
-        return max(walls, near_fan + far_fan, 2 * near_fan)
-
     def with_config(self, cfg: Any) -> Scene3D:
         k = cfg.scene.blades
         if self.blades is None:
