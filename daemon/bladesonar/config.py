@@ -72,6 +72,9 @@ class SceneSettings:
     target_range_m: float | None = opt(None, "one-way range of the fan centre if known; null: "
                                        "found from the reference's doppler energy",
                                        lo=0.0, hi=1000.0, unit="m", nullable=True)
+    downdraft_rotation: str = opt("ccw", "which way the fan turns, seen from below, when it "
+                                  "blows down (most fans: ccw); turns a measured airflow "
+                                  "into a rotation", choices=("ccw", "cw"))
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,8 @@
-"""``bladesonar analyze``: direction and rate of a recording against a reference.
+"""``bladesonar analyze``: direction and rate of a recording against a reference, and the
+airflow from the echoes alone (with or without a reference).
 
-A thin edge: read config, reference and WAV, run analysis.analyze, print one JSON object
+A thin edge: read config, reference and WAV, run analysis.analyze and the airflow stage
+(airflow_recording.py) on the first ``AIRFLOW_SAMPLES`` samples, print one JSON object
 (or, with --track, one JSON line per pulse followed by nothing else).
 """
 
@@ -9,50 +11,115 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterator
+from typing import Any
 
 EPILOG = """\
-output keys: direction (same|reversed|stopped|unknown, against the reference), rotation
+output keys: airflow (down|up|unknown, from the echoes alone, no reference needed),
+airflow_confidence (0..1), airflow_rotation (cw|ccw seen from below, by
+scene.downdraft_rotation; null when the airflow is unknown), airflow_shift (the glints'
+range shift, samples per pulse, + = receding) and airflow_reason; with --reference also:
+direction (same|reversed|stopped|unknown, against the reference), rotation
 (cw|ccw when the reference knows its own, else null), relative_rate (signed, this
 recording / reference), rate_hz and rpm (magnitude), confidence (0..1), pulses,
 dropped_pulses, window_s (the estimate describes the last window_s seconds), warnings.
 Limits: |rate| < PRF / (2 K); |relative_rate| up to tracking.slew_limit.
 
 example:
+  bladesonar analyze --config cfg.yaml probe.wav
   bladesonar analyze --config cfg.yaml --reference ref.npz probe.wav
   bladesonar analyze --config cfg.yaml --reference ref.npz --track probe.wav | tail -1
 """
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("analyze", help="rotation direction and rate of a recording against "
-                       "a reference", description="Match every pulse of a recording against "
-                       "a reference's angular table, track the matched phase and report "
-                       "direction and rate.", epilog=EPILOG,
+    p = sub.add_parser("analyze", help="airflow of a recording, and its rotation direction "
+                       "and rate against a reference", description="Tell the fan's airflow "
+                       "(down or up) from the echoes alone; with --reference also match "
+                       "every pulse against the reference's angular table, track the matched "
+                       "phase and report direction and rate.", epilog=EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", metavar="CFG", help="YAML config (default: built-in defaults)")
-    p.add_argument("--reference", required=True, metavar="REF",
-                   help="reference file made by 'bladesonar reference'")
+    p.add_argument("--reference", metavar="REF",
+                   help="reference file made by 'bladesonar reference' (without one: the "
+                        "airflow only, from the first 23.8 s)")
     p.add_argument("--track", action="store_true",
                    help="print one JSON line per pulse with the running estimate")
     p.add_argument("wav", metavar="IN.wav", help="mono WAV recording")
     p.set_defaults(func=run)
 
 
+#: Samples the airflow stage reads (the first 2^20: 23.8 s at 44.1 kHz; memory stays
+#: bounded whatever the recording's length).
+AIRFLOW_SAMPLES = 1 << 20
+
+
+def _airflow(x: Any, cfg: Any, *, quiet_errors: bool = False) -> dict[str, Any]:
+    """The airflow keys; with ``quiet_errors`` a recording the stage cannot use gives
+    ``unknown`` with the reason instead of an error (the reference's answer still
+    stands)."""
+    from ..airflow_recording import recording_airflow
+    from ..errors import InputError
+
+    try:
+        a = recording_airflow(x, cfg)
+    except InputError as exc:
+        if not quiet_errors:
+            raise
+        return dict(airflow="unknown", airflow_confidence=0.0, airflow_rotation=None,
+                    airflow_reason=str(exc))
+    out = a.as_dict()
+    turn = cfg.scene.downdraft_rotation
+    out["airflow_rotation"] = (None if a.airflow == "unknown" else turn if a.airflow == "down"
+                               else ("cw" if turn == "ccw" else "ccw"))
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
-    from ..analysis import analyze
     from ..io.config_file import load_config
+    from ..io.wav import read_wav
+
+    cfg = load_config(args.config)
+    if args.reference is None:
+        if args.track:
+            from ..errors import ConfigError
+            raise ConfigError("--track", True, "needs --reference REF (the per-pulse track "
+                              "follows the reference's angles)")
+        x, _ = read_wav(args.wav, expect_rate=cfg.audio.sample_rate,
+                        max_samples=AIRFLOW_SAMPLES, cut=True)
+        print(json.dumps(_airflow(x, cfg)))
+        return 0
+    return _with_reference(args, cfg)
+
+
+def _with_reference(args: argparse.Namespace, cfg: Any) -> int:
+    import numpy as np
+
+    from ..analysis import analyze
     from ..io.reference import load_reference
     from ..io.wav import stream_wav
 
-    cfg = load_config(args.config)
     ref = load_reference(args.reference)
+    head: list[Any] = []
+    kept = 0
+
+    def tee(blocks: Iterator[Any]) -> Iterator[Any]:
+        # the airflow stage reads the first AIRFLOW_SAMPLES of what analyze streams
+        nonlocal kept
+        for b in blocks:
+            if kept < AIRFLOW_SAMPLES:
+                head.append(np.array(b[:AIRFLOW_SAMPLES - kept], dtype=np.float64))
+                kept += len(head[-1])
+            yield b
+
     # read in blocks: memory independent of the recording's length (rows aside)
     with stream_wav(args.wav, expect_rate=cfg.audio.sample_rate) as blocks:
-        summary, rows = analyze(blocks, cfg, ref, track=args.track)
+        summary, rows = analyze(tee(blocks), cfg, ref, track=args.track)
     if args.track:
         out = sys.stdout
         for row in rows:
             out.write(json.dumps(row) + "\n")
     else:
-        print(json.dumps(summary))
+        x = np.concatenate(head) if head else np.zeros(0)
+        print(json.dumps({**summary, **_airflow(x, cfg, quiet_errors=True)}))
     return 0

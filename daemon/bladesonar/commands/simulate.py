@@ -16,13 +16,16 @@ if TYPE_CHECKING:
     from ..config import Config
     from ..sim.render import Simulator
     from ..sim.scene import Scene
+    from ..sim.scene3d import Scene3D
 
 EPILOG = """\
 conventions:
   floor plan x right, y up, seen from above; angles and rates ccw-positive; fan angle 0 puts
-  blade 0 along +x. One-way range = c * delay / 2, delay counted from the direct-coupling
-  edge. SNR = fan-echo power (blade, wall_blade, blade_wall paths, noise-free) averaged over
-  the samples inside the range gate of every pulse, over the white-noise power.
+  blade 0 along +x. A 3-D scene (room.size [x, y, z], z up) has pitched blades and its
+  rotation (schedule, angles, rates) seen from below; + pitch blows down turning ccw.
+  One-way range = c * delay / 2, delay counted from the direct-coupling edge. SNR =
+  fan-echo power (blade, wall_blade, blade_wall paths, noise-free) averaged over the
+  samples inside the range gate of every pulse, over the white-noise power.
 
 example:
   bladesonar simulate --scene config/scenes/paper-room.yaml --seconds 10 --out out/fan.wav
@@ -63,14 +66,16 @@ def _count(what: str, lo: int):
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate", help="render a scene (room, fan, rotation schedule) to WAV + truth JSON",
-        description="Simulate the pulsed sonar in a 2-D room with a rotating fan: writes a "
-                    "mono 16-bit WAV at the config's sample rate and OUT.truth.json (per-pulse "
-                    "fan angle, rate, direction and path delays), then prints a one-line "
+        description="Simulate the pulsed sonar in a 2-D room, or a 3-D box room with "
+                    "pitched blades, with a rotating fan: writes a mono 16-bit WAV at the "
+                    "config's sample rate and OUT.truth.json (per-pulse fan angle, rate, "
+                    "direction, airflow in 3-D and path delays), then prints a one-line "
                     "JSON summary on stdout.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scene", required=True, metavar="SCENE.yaml",
                    help="scene file: room polygon, wall reflection, sensor, fan "
-                        "(e.g. config/scenes/paper-room.yaml)")
+                        "(e.g. config/scenes/paper-room.yaml), or a 3-D box room "
+                        "(config/scenes/living-room-3d.yaml)")
     p.add_argument("--seconds", required=True, metavar="S",
                    type=_number("give the length of the recording in seconds, > 0", lo=0.0,
                                 lo_open=True, hi=1e7),
@@ -166,11 +171,11 @@ def _run(args: argparse.Namespace) -> int:
     import json
 
     from ..io.config_file import load_config
-    from ..io.scene_file import load_scene
+    from ..io.scene_file import load_any_scene
     from ..io.truth import truth_path
 
     cfg = load_config(args.config)
-    sim = _simulator(args, cfg, load_scene(args.scene))
+    sim = _simulator(args, cfg, load_any_scene(args.scene))
     meta = sim.prepare(args.seconds)
     out = Path(args.out)
     wav, truth = _write_recording(args, cfg, sim, meta, out)
@@ -183,7 +188,7 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _simulator(args: argparse.Namespace, cfg: Config, scene: Scene) -> Simulator:
+def _simulator(args: argparse.Namespace, cfg: Config, scene: Scene | Scene3D) -> Simulator:
     """The simulator the options describe (rotation, noise, impairments), checked against
     each other and the config."""
     import dataclasses

@@ -35,6 +35,7 @@ import numpy as np
 from ..dsp import aliasing
 from .nuisances import Nuisances
 from .scene import Scene
+from .scene3d import Scene3D
 from .schedule import ordinary_use
 
 #: Seeds from this one on are held out: no tuning decision may look at them.
@@ -202,3 +203,117 @@ def draw(seed: int, prf: float = 44100.0 / 1297) -> SceneDraw:
     return SceneDraw(seed=seed, scene=scene, blades=K, snr_db=snr, drift_ppm=drift,
                      rates_hz=(lo, hi), ref_rate_hz=ref, ref_direction=ref_dir,
                      ceiling_m=ceiling, nuisances=Nuisances(**nz))
+
+
+# ---------------------------------------------------------------------- 3-D scenes
+
+#: What a random 3-D scene draws (sim/scene3d.py), for the airflow sweep (tools/bench_airflow).
+AXIS_OFFSET_M = (0.5, 3.0)
+SENSOR_Z_M = (0.3, 1.8)
+PITCH_DEG = (6.0, 18.0)
+RATE3_HZ = (0.15, 1.6)
+BLADES3 = (3, 5)
+SNR3_DB = (4.0, 20.0)
+SECONDS3 = (6.0, 15.0)
+
+
+@dataclass(frozen=True)
+class SceneDraw3D:
+    """One random 3-D scene and the run recorded in it."""
+
+    seed: int
+    scene: Scene3D
+    blades: int
+    snr_db: float
+    drift_ppm: float
+    schedule: str
+    seconds: float
+    rate_hz: float
+    """The steady signed rate after the ramp, ccw seen from below positive."""
+    nuisances: Nuisances = field(default_factory=Nuisances)
+
+    @property
+    def split(self) -> str:
+        return split_of(self.seed)
+
+    @property
+    def airflow(self) -> str:
+        """'down' or 'up' (the truth once the fan turns)."""
+        return str(self.scene.airflow(np.array([self.rate_hz]))[0])
+
+    def describe(self) -> dict[str, Any]:
+        s = self.scene
+        return {"seed": self.seed, "split": self.split, "size": [round(v, 2) for v in s.size],
+                "sensor": [round(v, 2) for v in s.sensor],
+                "fan_centre": [round(v, 2) for v in s.fan_centre], "blades": self.blades,
+                "blade_length_m": round(s.blade_length_m, 2),
+                "axis_offset_m": round(s.axis_offset_m, 2),
+                "pitch_deg": round(s.pitch_deg, 1), "droop_deg": round(s.droop_deg, 1),
+                "lobe_wavelength_m": round(s.lobe_wavelength_m, 3),
+                "rate_hz": round(self.rate_hz, 3), "schedule": self.schedule,
+                "seconds": round(self.seconds, 1), "snr_db": round(self.snr_db, 1),
+                "drift_ppm": round(self.drift_ppm, 1), "airflow": self.airflow,
+                "nuisances": self.nuisances.active}
+
+
+def draw_3d(seed: int) -> SceneDraw3D:
+    """The 3-D scene of ``seed``: a box room 3-7 m by 3-7 m with a 2.4-3.2 m ceiling, a fan
+    of 3-5 blades pitched 6-18 degrees either way 0.25-0.6 m below the ceiling, the sensor
+    0.3-1.8 m high and 0.5-3 m off the fan's axis, a run of 6-15 s at 0.15-1.6 Hz either
+    way (from rest over a ramp of up to 4 s in half the runs), SNR 4-20 dB, drift up to
+    +-150 ppm, a reverberant tail, a small speaker, an AGC and bursts in some of them.
+    Independent of :func:`draw` (its own random stream)."""
+    rng = np.random.default_rng([seed, 3])
+    while True:
+        lx, ly = (float(rng.uniform(*SIDE_M)) for _ in range(2))
+        lz = float(rng.uniform(*CEILING_M))
+        K = int(rng.integers(BLADES3[0], BLADES3[1] + 1))
+        length = float(rng.uniform(*BLADE_M))
+        hub = float(rng.uniform(0.08, 0.15))
+        tip = hub + length
+        if min(lx, ly) < 2 * (tip + 0.3) + 0.1:
+            continue
+        cx = float(rng.uniform(tip + 0.3, lx - tip - 0.3))
+        cy = float(rng.uniform(tip + 0.3, ly - tip - 0.3))
+        cz = lz - float(rng.uniform(0.25, 0.6))
+        off = float(rng.uniform(*AXIS_OFFSET_M))
+        az = float(rng.uniform(0.0, 2 * math.pi))
+        sx, sy = cx + off * math.cos(az), cy + off * math.sin(az)
+        if 0.25 <= sx <= lx - 0.25 and 0.25 <= sy <= ly - 0.25:
+            break
+    sz = float(rng.uniform(SENSOR_Z_M[0], min(SENSOR_Z_M[1], cz - 0.5)))
+    refl = [round(float(rng.uniform(*REFLECTION)), 3) for _ in range(6)]
+    pitch = float(rng.uniform(*PITCH_DEG)) * (1.0 if rng.uniform() < 0.5 else -1.0)
+    rate = float(np.exp(rng.uniform(math.log(RATE3_HZ[0]), math.log(RATE3_HZ[1]))))
+    direction = "ccw" if rng.uniform() < 0.5 else "cw"
+    seconds = round(float(rng.uniform(*SECONDS3)), 1)
+    ramp = round(float(rng.uniform(1.0, 4.0)), 1) if rng.uniform() < 0.5 else 0.0
+    schedule = f"{direction}:{rate:.4f}:{seconds:g}" + (f"~{ramp:g}" if ramp else "")
+    nz: dict[str, Any] = {}
+    if rng.uniform() < 0.5:
+        nz["rt60_s"] = round(float(rng.uniform(0.2, 0.8)) * lz / 2.8, 3)
+        nz["reverb_db"] = round(float(rng.uniform(-12.0, 0.0)), 1)
+    if rng.uniform() < 0.5:
+        nz["speaker_highpass_hz"] = round(float(rng.uniform(300.0, 800.0)), 0)
+        nz["speaker_resonance_hz"] = round(float(rng.uniform(1500.0, 4000.0)), 0)
+    if rng.uniform() < 0.25:
+        nz["agc_db"] = round(float(rng.uniform(1.0, 4.0)), 1)
+    if rng.uniform() < 0.25:
+        nz["burst_fraction"] = round(float(rng.uniform(0.02, 0.1)), 3)
+    scene = Scene3D.from_mapping({
+        "name": f"random3d-{seed}",
+        "room": {"size": [lx, ly, lz], "reflection": refl},
+        "sensor": [sx, sy, sz],
+        "coupling_gain": float(np.exp(rng.uniform(0.0, math.log(COUPLING[1])))),
+        "fan": {"centre": [cx, cy, cz], "blades": K, "blade_length_m": length,
+                "hub_radius_m": hub, "chord_m": float(rng.uniform(0.09, 0.15)),
+                "pitch_deg": pitch, "droop_deg": float(rng.uniform(0.0, 4.0)),
+                "start_angle_deg": float(rng.uniform(0.0, 360.0)),
+                "lobe_wavelength_m": float(rng.uniform(0.03, 0.08)),
+                "diffuse": float(rng.uniform(0.02, 0.1))},
+    })
+    return SceneDraw3D(seed=seed, scene=scene, blades=K,
+                       snr_db=float(rng.uniform(*SNR3_DB)),
+                       drift_ppm=float(rng.uniform(-DRIFT_PPM, DRIFT_PPM)),
+                       schedule=schedule, seconds=seconds,
+                       rate_hz=rate if direction == "ccw" else -rate, nuisances=Nuisances(**nz))

@@ -58,6 +58,7 @@ from . import schedule as _schedule
 from .nuisances import Nuisances
 from .reverb import Tail
 from .scene import Scene
+from .scene3d import Scene3D
 from .walker import walker_paths
 
 log = logging.getLogger(__name__)
@@ -88,11 +89,19 @@ def echo_response(scene: Scene, cfg, fan_angle_rad: float, n_samples: int, *,
     dropped (they matter only for echoes within 16 samples of the coupling).
     """
     scene = scene.with_config(cfg)
-    p = geometry.paths(scene, fan_angle_rad, wall_bounces=wall_bounces)
+    p = geometry_of(scene).paths(scene, fan_angle_rad, wall_bounces=wall_bounces)
     keep = np.ones(len(p.kind), bool) if include_coupling else p.kind != "coupling"
     d = p.delay_samples(cfg.scene.speed_of_sound, cfg.audio.sample_rate)[keep]
     idx, w = waveform.shaped_taps(d, p.gain[keep], np.ones(1))
     return waveform.render(idx, w, 0, int(n_samples))
+
+
+def geometry_of(scene: Scene | Scene3D) -> Any:
+    """The path module of a scene: ``geometry`` (2-D floor plan) or ``geometry3d``."""
+    if isinstance(scene, Scene3D):
+        from . import geometry3d
+        return geometry3d
+    return geometry
 
 
 def gate_samples(cfg) -> tuple[float, float, tuple[float, float]]:
@@ -126,13 +135,15 @@ class Simulator:
         else none.
     """
 
-    def __init__(self, scene: Scene, cfg, schedule: Any = None, *, snr_db: float | None = None,
-                 seed: int = 0, start_offset: float | None = None, drift_ppm: float = 0.0,
+    def __init__(self, scene: Scene | Scene3D, cfg, schedule: Any = None, *,
+                 snr_db: float | None = None, seed: int = 0,
+                 start_offset: float | None = None, drift_ppm: float = 0.0,
                  dropouts: int | Sequence[tuple[int, int]] = 0, dropout_samples: int = 64,
                  dropout_mode: str = "remove", dc_offset: float = 0.0,
                  clip: float | None = None, wall_bounces: bool = True,
                  include_paths: bool = True, nuisances: Nuisances | None = None) -> None:
         self.scene = scene.with_config(cfg)
+        self.geo = geometry_of(self.scene)
         self.nz = nuisances if nuisances is not None else (scene.nuisances or Nuisances())
         self.cfg = cfg
         if schedule is None:
@@ -191,8 +202,12 @@ class Simulator:
         self._blocks: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._noise_cache: tuple[int, np.ndarray] | None = None
         self._dmax = self._max_delay_samples()
-        self._kind = geometry.path_table(self.scene, np.zeros(1),
+        self._kind = self.geo.path_table(self.scene, np.zeros(1),
                                          wall_bounces=self.wall_bounces).kind
+        if isinstance(self.scene, Scene3D) and self.nz.walker_speed_m_s > 0:
+            raise ConfigError("walker_speed_m_s", self.nz.walker_speed_m_s,
+                              "is not simulated in a 3-D scene; set it to 0 or use a 2-D "
+                              "scene")
         self.tail = self._make_tail()
         self.bursts: list[_device.Burst] = []
         self.burst_rms = 0.0
@@ -205,7 +220,7 @@ class Simulator:
         lively room)."""
         if self.nz.rt60_s <= 0:
             return None
-        p = geometry.paths(self.scene, 0.0, wall_bounces=False)
+        p = self.geo.paths(self.scene, 0.0, wall_bounces=False)
         walls = p.kind == "wall"
         if walls.any():
             d = p.delay_samples(self.c, self.fs)[walls]
@@ -218,8 +233,12 @@ class Simulator:
         level = self.amplitude * math.sqrt(e_walls / samples) * 10 ** (self.nz.reverb_db / 20)
         # the tail belongs to the room, not to the run: the same scene rings the same way
         # in a reference and in a later probe (seeded by the geometry, not by --seed)
-        room = json.dumps([self.scene.vertices, self.scene.wall_reflection, self.scene.sensor,
-                           self.scene.fan_centre]).encode()
+        if isinstance(self.scene, Scene3D):
+            key: list[Any] = self.scene.room_key()
+        else:
+            key = [self.scene.vertices, self.scene.wall_reflection, self.scene.sensor,
+                   self.scene.fan_centre]
+        room = json.dumps(key).encode()
         room_seed = int.from_bytes(hashlib.sha256(room).digest()[:4], "little")
         return Tail(self.nz.rt60_s, start, level, self.nz.reverb_fan_share, self.shape,
                     self.fs, room_seed, time_scale=343.0 / self.c)
@@ -237,6 +256,8 @@ class Simulator:
                         "ever at a specular angle for the direct echo", d)
 
     def _max_delay_samples(self) -> float:
+        if isinstance(self.scene, Scene3D):
+            return float(self.geo.max_path_m(self.scene)) / self.c * self.fs + 1.0
         s = self.scene
         S, C = np.asarray(s.sensor), np.asarray(s.fan_centre)
         delta = np.sum((S - s.wall_a) * s.wall_normals, axis=1)
@@ -361,6 +382,16 @@ class Simulator:
                        "(after drift and drop-outs); null if it fell in a drop-out",
                 time_s="true emission time of the pulse"),
         )
+        if isinstance(self.scene, Scene3D):
+            self.meta["conventions"].update(
+                angle="fan angle in rad, ccw positive seen from below (x, y the floor plan "
+                      "seen from above, z up; ccw from below turns +x towards -y); 0 = "
+                      "blade 0 along +x; phase = frac(K * angle / 2pi)",
+                rate="rate_hz signed, + = ccw seen from below; direction = rotation seen "
+                     "from below",
+                airflow="down or up: the sign of rate times the blades' pitch (+ pitch "
+                        "blows down turning ccw seen from below); none at rest or with "
+                        "flat blades")
         return self.meta
 
     def _edge(self, k: np.ndarray | int) -> np.ndarray:
@@ -375,7 +406,7 @@ class Simulator:
         k = np.arange(b * _PULSE_BLOCK, (b + 1) * _PULSE_BLOCK)
         t = (self.offset + k * float(self.pri)) / self.fs
         ang = self.schedule.angle_at(t, self.scene.start_angle_rad)
-        tab = geometry.path_table(self.scene, ang, wall_bounces=self.wall_bounces)
+        tab = self.geo.path_table(self.scene, ang, wall_bounces=self.wall_bounces)
         d = np.where(tab.valid, tab.length_m, 0.0) / self.c * self.fs
         hit = (d, tab.gain, tab.valid)
         for old in [x for x in self._blocks if x < b - 1]:
@@ -406,7 +437,7 @@ class Simulator:
         for k0 in range(0, self.n_pulses, _PULSE_BLOCK):
             k1 = min(k0 + _PULSE_BLOCK, self.n_pulses)
             d, g, v = self._pulse_rows(k0, k1)
-            fan = np.isin(self._kind, geometry.FAN_KINDS)[None, :] & v
+            fan = np.isin(self._kind, self.geo.FAN_KINDS)[None, :] & v
             echo = (self._kind != "coupling")[None, :] & v
             for name, m in (("fan", fan), ("all_echoes", echo)):
                 if name == "all_echoes" and sums["fan"] > 0 and not self.nz.burst_fraction:
@@ -446,7 +477,7 @@ class Simulator:
         k = np.arange(k0, k1, dtype=np.float64)[:, None]
         pos = ((self.offset + k * self.pri) + d) * self.scale
         pos, amp = pos[v], self.amplitude * g[v]
-        if self.nz.walker_speed_m_s > 0:
+        if self.nz.walker_speed_m_s > 0 and isinstance(self.scene, Scene):
             t = (self.offset + k[:, 0] * self.pri) / self.fs
             length, gain, here = walker_paths(self.nz, self.scene, t)
             wp = ((self.offset + k[:, 0] * self.pri) + length / self.c * self.fs) * self.scale
@@ -524,6 +555,7 @@ class Simulator:
         phase = np.where(phase >= 1.0, 0.0, phase)
         dirs = _schedule.direction_of(rate)
         edges = self._edge(k)
+        airflow = self.scene.airflow(rate) if isinstance(self.scene, Scene3D) else None
         if self.include_paths:
             d, g, v = self._pulse_rows(k0, k1)
         recs = []
@@ -532,6 +564,8 @@ class Simulator:
             r: dict[str, Any] = dict(pulse=int(k[i]), time_s=float(t[i]), sample=sample,
                                      angle_rad=float(ang[i]), phase=float(phase[i]),
                                      rate_hz=float(rate[i]), direction=str(dirs[i]))
+            if airflow is not None:
+                r["airflow"] = str(airflow[i])
             if dropped:
                 r["dropped"] = True
             if any(b.capture_index - self.pri < edges[i] < b.capture_index + b.samples
@@ -590,7 +624,7 @@ class Simulator:
             kdone = kend
 
 
-def simulate(scene: Scene, cfg, seconds: float, schedule: Any = None, **kwargs: Any
+def simulate(scene: Scene | Scene3D, cfg, seconds: float, schedule: Any = None, **kwargs: Any
              ) -> tuple[np.ndarray, dict[str, Any]]:
     """Whole run in memory: (float64 samples, truth dict with meta, pulses, summary).
 

@@ -1,0 +1,166 @@
+"""The airflow stage: moving echoes of known direction and speed, a room at rest, bad
+input, and truth from simulated 3-D scenes (the physics in sim/geometry3d.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bladesonar import cli, config, waveform
+from bladesonar.airflow_recording import recording_airflow
+from bladesonar.dsp import airflow as af
+from bladesonar.sim import random_scene
+from bladesonar.sim.render import simulate
+
+PRF = 44100.0 / 1297
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def streaks(n: int, v: float, *, L: int = 600, noise: float = 0.02, seed: int = 0,
+            period: int = 60, glint: int = 30) -> np.ndarray:
+    """Pulses with a strong static room and, every ``period`` pulses, a glint that swells
+    and fades (Hann) over ``glint`` pulses and moves ``v`` samples per pulse (v < 0: to
+    shorter range), drawn band-limited at sub-sample positions; white noise of ``noise``
+    rms."""
+    rng = np.random.default_rng(seed)
+    x = np.zeros((n, L))
+    static = rng.standard_normal(L) * np.exp(-np.arange(L) / 150.0)
+    x += static
+    for k in range(n):
+        j = k % period
+        if j < glint:
+            centre = 300.0 + v * (j - glint / 2)
+            amp = 0.3 * math.sin(math.pi * (j + 0.5) / glint) ** 2
+            idx, w = waveform.shaped_taps(np.array([centre]), np.array([amp]), np.ones(1))
+            x[k] += waveform.render(idx, w, 0, L)
+    return x + noise * rng.standard_normal((n, L))
+
+
+@pytest.mark.parametrize("v", [-6.0, -0.5, 0.5, 6.0])
+def test_echoes_that_approach_are_down_and_recede_up_at_sub_sample_speeds(v):
+    x = streaks(400, v, noise=0.01)
+    a = af.measure(x, np.ones(len(x), bool), PRF)
+    assert a.airflow == ("down" if v < 0 else "up"), a
+    assert a.confidence > 0.68 and abs(a.t) >= af.CALL_T
+
+
+def test_a_room_at_rest_is_unknown():
+    rng = np.random.default_rng(3)
+    static = rng.standard_normal(600)
+    ts = []
+    for seed in range(6):
+        x = static + 0.05 * np.random.default_rng(seed).standard_normal((400, 600))
+        a = af.measure(x, np.ones(400, bool), PRF)
+        assert a.airflow == "unknown"
+        ts.append(a.t)
+    assert max(abs(t) for t in ts) < af.CALL_T
+
+
+def test_too_few_pulses_is_unknown_and_says_why():
+    x = streaks(60, -3.0)
+    a = af.measure(x, np.ones(60, bool), PRF)
+    assert a.airflow == "unknown" and "too short" in a.reason
+    a = af.measure(x[:1], np.ones(1, bool), PRF)
+    assert a.airflow == "unknown"
+
+
+def test_bad_input_names_the_value():
+    with pytest.raises(ValueError, match="pulses must be"):
+        af.measure(np.zeros(10), np.ones(10, bool), PRF)
+    with pytest.raises(ValueError, match="prf"):
+        af.measure(np.zeros((10, 8)), np.ones(10, bool), float("nan"))
+    with pytest.raises(ValueError, match="alpha"):
+        af.two_sided_mean(np.zeros((4, 3)), np.ones(4, bool), 0.0)
+
+
+def test_the_two_sided_mean_looks_both_ways_alike():
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal((200, 5))
+    keep = rng.uniform(size=200) > 0.1
+    m = af.two_sided_mean(x, keep, 0.05)
+    r = af.two_sided_mean(x[::-1], keep[::-1], 0.05)[::-1]
+    assert np.allclose(m[keep], r[keep])      # rows left out only copy a neighbour
+    c = af.two_sided_mean(np.ones((50, 3)) * 2.5, np.ones(50, bool), 0.1)
+    assert np.allclose(c, 2.5)
+
+
+def _run(seed: int, **over):
+    d = random_scene.draw_3d(seed)
+    cfg = config.from_mapping({"scene": {"blades": d.blades}})
+    kw = dict(snr_db=d.snr_db, seed=seed, drift_ppm=d.drift_ppm, nuisances=d.nuisances,
+              include_paths=False)
+    sched = over.pop("schedule", d.schedule)
+    seconds = over.pop("seconds", d.seconds)
+    kw.update(over)
+    x, truth = simulate(d.scene, cfg, seconds, sched, **kw)
+    return d, recording_airflow(x, cfg)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 3, 10, 12, 16, 23])
+def test_random_3d_scenes_give_the_true_airflow(seed):
+    # tuning scenes: reverberant, small speakers, AGC, bursts, slow (0.17-0.29 Hz) and
+    # fast, both airflows, 4-18 dB
+    d, a = _run(seed)
+    assert a.airflow == d.airflow, (d.describe(), a)
+
+
+@pytest.mark.slow
+def test_a_stopped_fan_and_a_short_recording_are_unknown():
+    d, a = _run(6, schedule="stop:0:8")
+    assert a.airflow == "unknown" and abs(a.t) < af.CALL_T
+    d, a = _run(6, seconds=2.0)
+    assert a.airflow == "unknown" and "too short" in a.reason
+
+
+@pytest.mark.slow
+def test_reversing_the_fan_reverses_the_call():
+    d, a = _run(4)
+    rev = d.schedule.replace("ccw:", "CW:").replace("cw:", "ccw:").replace("CW:", "cw:")
+    _, b = _run(4, schedule=rev)
+    assert {a.airflow, b.airflow} == {"down", "up"}
+    assert math.copysign(1, a.t) != math.copysign(1, b.t)
+
+
+def _sim_wav(tmp_path, schedule: str, seconds: float = 8.0):
+    out = tmp_path / "fan.wav"
+    rc = cli.main(["simulate", "--scene", str(ROOT / "config/scenes/living-room-3d.yaml"),
+                   "--seconds", str(seconds), "--schedule", schedule, "--snr-db", "12",
+                   "--drift-ppm", "60", "--seed", "5", "--no-paths", "--out", str(out),
+                   "--quiet"])
+    assert rc == 0
+    return out
+
+
+@pytest.mark.slow
+def test_analyze_without_a_reference_prints_the_airflow(tmp_path, capsys):
+    wav = _sim_wav(tmp_path, "cw:0.6:8~2")          # + pitch turning cw: up
+    capsys.readouterr()
+    assert cli.main(["analyze", str(wav)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["airflow"] == "up" and out["airflow_rotation"] == "cw"
+    assert 0.68 <= out["airflow_confidence"] <= 1.0
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("scene:\n  downdraft_rotation: cw\n")
+    assert cli.main(["analyze", "--config", str(cfg), str(wav)]) == 0
+    assert json.loads(capsys.readouterr().out)["airflow_rotation"] == "ccw"
+    assert cli.main(["analyze", "--track", str(wav)]) == 2
+    assert "--reference" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_independent_3d_sample_gives_its_airflow(capsys):
+    # another simulator's recordings (its fan blows down turning ccw seen from below):
+    # the reference turned ccw, the probe cw
+    from conftest import require_shared_sample
+    d = require_shared_sample()
+    truth = json.loads((d / "truth.json").read_text())
+    for name, key in (("reference.wav", "reference"), ("probe.wav", "probe")):
+        assert cli.main(["analyze", "--config", str(d / "config.yaml"), str(d / name)]) == 0
+        out = json.loads(capsys.readouterr().out)
+        assert out["airflow_rotation"] == truth[key]["rotation"], out
+        assert out["airflow"] == ("down" if truth[key]["rotation"] == "ccw" else "up")
