@@ -232,15 +232,17 @@ class Room:
         self.stats.seconds = time.monotonic() - (self._t0 or t_open)
         return self.stats
 
-    def _answer(self, k: int, played: np.ndarray) -> None:
-        """Echoes of played block k (fan static during the block), overlap-added."""
+    def _answer(self, k: int, played: np.ndarray, at_sample: int | None = None) -> None:
+        """Echoes of played block k (fan static during the block), overlap-added at
+        capture sample ``at_sample`` (default: latency + k * pri)."""
         from ..sim.render import echo_response
 
         t = k * self.pri / self.fs
         angle = float(self.schedule.angle_at(np.array([t]), self.scene.start_angle_rad)[0])
         h = echo_response(self.scene, self.cfg, angle, self.ir_samples)
         y = fftconvolve(played, h) if np.any(played) else np.zeros(len(played) + len(h) - 1)
-        at = self.latency + k * self.pri - self._acc_start
+        at = (self.latency + k * self.pri if at_sample is None else at_sample) \
+            - self._acc_start
         need = at + len(y)
         if need > len(self._acc):
             self._acc = np.concatenate([self._acc, np.zeros(need - len(self._acc))])

@@ -142,6 +142,9 @@ class AlsaAudio:
             self._play.close()
             self._play = None
             raise
+        self._start_threads()
+
+    def _start_threads(self) -> None:
         self._threads = [threading.Thread(target=self._guard, args=(self._playback_loop,),
                                           name="bladesonar-playback", daemon=True),
                          threading.Thread(target=self._guard, args=(self._capture_loop,),
@@ -200,6 +203,7 @@ class AlsaAudio:
                 continue
             t_last = now
             pending += data
+            self._on_period(start + len(pending) // (self.period_bytes // pri))
             while len(pending) >= self.period_bytes:
                 if self._flag_next.is_set():
                     self._flag_next.clear()
@@ -211,6 +215,10 @@ class AlsaAudio:
                 disc = False
                 self.periods_read += 1
 
+    def _on_period(self, capture_end: int) -> None:
+        """Called by the capture thread after each read (capture-stream index of the
+        end of what was read): a hook for the sound-server backend."""
+
     # -- consumer side -------------------------------------------------------------------
 
     def read_pulse(self, timeout: float) -> PulseBlock | None:
@@ -220,7 +228,7 @@ class AlsaAudio:
     def read_pulses(self, n: int, timeout: float) -> list[PulseBlock]:
         return [self._decoder(raw) for raw in self._ring.get_batch(n, timeout)]
 
-    def stats(self) -> dict[str, int]:
+    def stats(self) -> dict[str, Any]:
         return {"xruns_playback": self.xruns_playback, "xruns_capture": self.xruns_capture,
                 "ring_overflows": self._ring.overflows, "periods_written": self.periods_written,
                 "periods_read": self.periods_read, "periods_delivered": self._decoder.delivered,
