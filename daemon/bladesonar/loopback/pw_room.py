@@ -37,8 +37,10 @@ log = logging.getLogger(__name__)
 
 SINK = "bladesonar_sink"
 SOURCE = "bladesonar_source"
-#: The room's own ALSA period and the silence it starts its answer with (samples).
+#: The room's own ALSA period (samples) and buffer (periods): deep, so that a busy
+#: machine does not starve the room's playback (an underrun would shift its delay).
 ROOM_PERIOD = 1024
+ROOM_PERIODS = 16
 #: A gap of this much silence from the daemon ends a session.
 SESSION_GAP_S = 0.5
 #: How long the room waits for a (re)started server and its nodes.
@@ -67,7 +69,7 @@ class PwRoom(Room):
         # the room's output runs ``prime`` samples behind its input; an echo goes out
         # ``latency`` samples after the block it answers began: a whole PRI block is read
         # before it is answered, and what was read before it was already written
-        self.prime = 2 * ROOM_PERIOD
+        self.prime = ROOM_PERIODS // 2 * ROOM_PERIOD
         self.latency = self.pri + ROOM_PERIOD + int(extra_latency)
         self._cap: Any = None
         self._play: Any = None
@@ -82,7 +84,7 @@ class PwRoom(Room):
         return alsa.PCM(type=alsa.PCM_CAPTURE if kind == "capture" else alsa.PCM_PLAYBACK,
                         mode=alsa.PCM_NORMAL, device=f"pipewire:NODE={node}",
                         rate=int(self.fs), channels=1, format=fmt, periodsize=ROOM_PERIOD,
-                        periods=4)
+                        periods=ROOM_PERIODS)
 
     def open(self) -> None:
         from ..service.alsa_audio import _alsaaudio
@@ -185,7 +187,7 @@ class PwRoom(Room):
     def _alsa_error() -> type[Exception]:
         from ..service.alsa_audio import _alsaaudio
 
-        return _alsaaudio().ALSAAudioError  # type: ignore[no-any-return]
+        return _alsaaudio().ALSAAudioError
 
     def _serve_connected(self, should_stop: Callable[[], bool],
                          max_seconds: float | None) -> None:
@@ -216,6 +218,7 @@ class PwRoom(Room):
                 block, block_at = x[loud[0]:], pos + int(loud[0])   # pulse 0: schedule t=0
                 self._t0 = time.monotonic()
                 log.info("session %d: the daemon plays", self.sessions)
+                self._truth_session((self.prime + self.latency) / self.fs)
             elif active:
                 block = np.concatenate([block, x])
             silent = silent + len(x) if not len(loud) else len(x) - 1 - int(loud[-1])

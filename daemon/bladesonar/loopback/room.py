@@ -218,6 +218,10 @@ class Room:
             if self._t0 is None:
                 self._t0 = time.monotonic()
                 log.info("daemon connected: answering its pulses")
+                # paced, the pre-written silence is read at once, and the period holding
+                # the answer to played sample n goes out when its last sample is due
+                self._truth_session(((self.latency % self.unit) + self.unit) / self.fs
+                                    if self.realtime else 0.0)
             buf += data
             if len(buf) < self.period_bytes:
                 continue
@@ -231,6 +235,14 @@ class Room:
         self.stats.periods_played = k
         self.stats.seconds = time.monotonic() - (self._t0 or t_open)
         return self.stats
+
+    def _truth_session(self, answer_delay_s: float) -> None:
+        """A truth line for a session's start: when its pulse 0 reached the room (wall
+        clock), and how much later the room's answer to a block enters the capture."""
+        if self.truth is not None:
+            self.truth.write(json.dumps({"session_started_at": time.time(),
+                                         "answer_delay_s": answer_delay_s}) + "\n")
+            self.truth.flush()
 
     def _answer(self, k: int, played: np.ndarray, at_sample: int | None = None) -> None:
         """Echoes of played block k (fan static during the block), overlap-added at

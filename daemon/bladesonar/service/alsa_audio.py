@@ -203,7 +203,6 @@ class AlsaAudio:
                 continue
             t_last = now
             pending += data
-            self._on_period(start + len(pending) // (self.period_bytes // pri))
             while len(pending) >= self.period_bytes:
                 if self._flag_next.is_set():
                     self._flag_next.clear()
@@ -214,10 +213,6 @@ class AlsaAudio:
                 start += pri
                 disc = False
                 self.periods_read += 1
-
-    def _on_period(self, capture_end: int) -> None:
-        """Called by the capture thread after each read (capture-stream index of the
-        end of what was read): a hook for the sound-server backend."""
 
     # -- consumer side -------------------------------------------------------------------
 
