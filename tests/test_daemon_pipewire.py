@@ -118,7 +118,11 @@ def daemon_config(d: Path, **audio: Any) -> Path:
 def check_answer(run: Run) -> None:
     """What a subscriber must get on this schedule: one reversal to cw, the rate."""
     assert run.rc == 0, run.stderr[-3000:]
-    assert [e["kind"] for e in run.events()] == ["reversed"], run.events()
+    seen = [(round(t - run.messages[0][0], 1), p.get("direction"), p.get("confidence"))
+            for t, m in run.messages if m["topic"].endswith("/state")
+            for p in [m["payload"]]]
+    assert [e["kind"] for e in run.events()] == ["reversed"], (run.events(), seen,
+                                                               run.stderr[-2000:])
     assert run.events()[0]["details"]["rotation"] == "cw"
     last = [s for s in run.topic("state") if s.get("direction") == "reversed"][-1]
     assert last["rotation"] == "cw" and last["rate_hz"] == pytest.approx(RATE, rel=0.05)
