@@ -93,6 +93,11 @@ DUMP = [
                   {"subject": 0, "key": "clock.quantum", "value": 1024},
                   {"subject": 0, "key": "clock.force-quantum", "value": 256},
                   {"subject": 0, "key": "clock.force-rate", "value": 0}]},
+    {"id": 31, "type": "PipeWire:Interface:Metadata", "props": {"metadata.name": "default"},
+     "metadata": [{"subject": 0, "key": "default.audio.sink",
+                   "value": {"name": "alsa_output.speaker"}},
+                  {"subject": 0, "key": "default.audio.source",
+                   "value": '{"name": "echo-cancel-source"}'}]},
     {"id": 70, "type": "PipeWire:Interface:Client",
      "info": {"props": {"application.process.id": 4242}}},
     {"id": 50, "type": "PipeWire:Interface:Node",
@@ -157,3 +162,13 @@ def test_stream_latency_ignores_pris_without_a_clear_edge():
     rng = np.random.default_rng(1)
     sl.push(rng.normal(0, 0.01, 100), 100)
     assert sl.samples is None
+
+
+def test_targets_are_read_before_the_streams_open_from_names_or_the_defaults():
+    t = sound_server.target_facts(DUMP, "default", "default")
+    assert t["playback"]["target"] == "alsa_output.speaker"
+    assert t["playback"]["target_rate"] == 48000 and not t["playback"]["echo_cancel"]
+    assert t["capture"]["target"] == "echo-cancel-source" and t["capture"]["echo_cancel"]
+    t = sound_server.target_facts(DUMP, "alsa_output.speaker", "no_such_node")
+    assert t["playback"]["target_class"] == "Audio/Sink"
+    assert t["capture"] == {"target": "no_such_node", "missing": True}

@@ -17,7 +17,6 @@ from __future__ import annotations
 import logging
 import os
 import re
-import threading
 import time
 from typing import Any
 
@@ -136,9 +135,7 @@ class PipeWireAudio(AlsaAudio):
         super().__init__(cfg)
         self.server = server
         self.graph: dict[str, Any] = {}
-        self.resampled = False
         self.latency = StreamLatency(self.pri)
-        self._probe: threading.Thread | None = None
 
     # -- opening -------------------------------------------------------------------------
 
@@ -162,18 +159,29 @@ class PipeWireAudio(AlsaAudio):
                 "sound server use audio.backend: alsa")
         return found
 
-    def _check_rate_before(self) -> None:
-        """Refuse a rate the graph would resample: the PRI is counted in our samples, and
-        a resampler between the streams would blur the pulse schedule."""
+    def _inspect_graph(self) -> None:
+        """Before the streams open: the graph's rate (refused unless it is ours: the PRI
+        is counted in our samples, and a resampler between the streams would blur the
+        pulse schedule) and the nodes the streams will go to (logged, in stats). Not
+        probed again once the streams run: a client joining the graph was seen to shift
+        the latency between the streams by a quantum."""
         dump = sound_server.pw_dump()
         if dump is None:
+            log.warning("pw-dump (pipewire-bin) gave no graph: the rate and the targets are "
+                        "not checked")
             return
+        a = self.cfg.audio
         facts = sound_server.graph_facts(dump, os.getpid())
-        want = int(self.cfg.audio.sample_rate)
+        facts.update(sound_server.target_facts(dump, a.playback_device, a.capture_device))
+        self.graph = facts
+        want = int(a.sample_rate)
         forced = facts.get("force_rate")
-        rate = forced or facts.get("clock_rate")
+        running = [f.get("target_rate") for f in (facts["playback"], facts["capture"])
+                   if f.get("target_rate")]
+        rate = forced or (running[0] if running else facts.get("clock_rate"))
         allowed = str(facts.get("allowed_rates") or "")
-        ok = want == rate or (not forced and str(want) in re.findall(r"\d+", allowed))
+        ok = want == rate or (not forced and not running
+                              and str(want) in re.findall(r"\d+", allowed))
         if rate and not ok:
             pri = round(self.cfg.waveform.pri_samples * rate / want)
             raise AudioDeviceError(
@@ -182,13 +190,27 @@ class PipeWireAudio(AlsaAudio):
                 f"resampled; set audio.sample_rate: {rate} and waveform.pri_samples: {pri} "
                 "(the same pulse rate), or add the rate to the server's "
                 "default.clock.allowed-rates")
+        for kind in ("playback", "capture"):
+            f = facts[kind]
+            key = f"audio.{kind}_device"
+            if f.get("missing"):
+                raise AudioDeviceError(
+                    f"{key} {getattr(a, kind + '_device')!r}: no such PipeWire node (or no "
+                    "default one); `wpctl status` lists them, `wpctl inspect ID` shows the "
+                    "node.name")
+            log.info("PipeWire %s -> %s (%s, %s Hz)", kind, f.get("target"),
+                     f.get("target_class"), f.get("target_rate") or "idle")
+            if f.get("echo_cancel"):
+                log.warning("the %s stream goes to an echo-cancel filter (%s): it removes the "
+                            "echoes the sonar needs; name the device node in %s", kind,
+                            f.get("target"), key)
 
     def start(self) -> None:
         self.server = self._wait_for_server()
         a = self.cfg.audio
         self._play_name = pcm_name(a.playback_device, "playback_device")
         self._cap_name = pcm_name(a.capture_device, "capture_device")
-        self._check_rate_before()
+        self._inspect_graph()
         os.environ["PIPEWIRE_PROPS"] = stream_props_text()
         alsa = _alsaaudio()
         self._play = self._open(alsa, "playback", self._play_name)
@@ -199,41 +221,6 @@ class PipeWireAudio(AlsaAudio):
             self._play = None
             raise
         self._start_threads()
-        self._probe = threading.Thread(target=self._inspect_graph, name="bladesonar-pw-probe",
-                                       daemon=True)
-        self._probe.start()
-
-    def _inspect_graph(self) -> None:
-        """Once audio flows: where our streams are linked, at what rate (logged, in stats)."""
-        deadline = time.monotonic() + 10.0
-        while self.periods_read < 1 and not self._stop.is_set():
-            if time.monotonic() > deadline:
-                return
-            time.sleep(0.05)
-        for _ in range(20):          # the session manager links the streams shortly after
-            if self._stop.wait(0.1):
-                return
-            dump = sound_server.pw_dump()
-            if dump is None:
-                return
-            facts = sound_server.graph_facts(dump, os.getpid())
-            if all((facts.get(k) or {}).get("target") for k in ("playback", "capture")):
-                break
-        self.graph = facts
-        want = int(self.cfg.audio.sample_rate)
-        rate = sound_server.graph_rate(facts)
-        self.resampled = bool(rate and rate != want)
-        for kind in ("playback", "capture"):
-            f = facts.get(kind) or {}
-            log.info("PipeWire %s stream %s -> %s (%s, %s Hz)", kind, f.get("node"),
-                     f.get("target"), f.get("target_class"), f.get("target_rate"))
-            if f.get("echo_cancel"):
-                log.warning("the %s stream is linked to an echo-cancel filter (%s): it removes "
-                            "the echoes the sonar needs; name the device node in "
-                            "audio.%s_device", kind, f.get("target"), kind)
-        if self.resampled:
-            log.error("the PipeWire graph runs at %s Hz, the streams at %s Hz: the server "
-                      "resamples them; set audio.sample_rate: %s", rate, want, rate)
 
     def read_pulse(self, timeout: float) -> PulseBlock | None:
         b = super().read_pulse(timeout)
@@ -265,7 +252,7 @@ class PipeWireAudio(AlsaAudio):
             "quantum": g.get("force_quantum") or g.get("quantum"),
             "playback_target": (g.get("playback") or {}).get("target"),
             "capture_target": (g.get("capture") or {}).get("target"),
-            "resampled": self.resampled,
+            "resampled": bool(g) and sound_server.graph_rate(g) != self.cfg.audio.sample_rate,
             "echo_cancel": any(bool((g.get(k) or {}).get("echo_cancel"))
                                for k in ("playback", "capture")),
             "stream_latency_ms": ms(lat.samples),

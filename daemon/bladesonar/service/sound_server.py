@@ -96,13 +96,55 @@ def pulseaudio_refusal(server: SoundServer) -> str:
 # -- the graph, from pw-dump (pure) -----------------------------------------------------
 
 
-def _settings(dump: list[dict[str, Any]]) -> dict[str, Any]:
+def _metadata(dump: list[dict[str, Any]], name: str = "settings") -> dict[str, Any]:
     for obj in dump:
         if obj.get("type", "").endswith("Metadata") and \
-                (obj.get("props") or {}).get("metadata.name") == "settings":
+                (obj.get("props") or {}).get("metadata.name") == name:
             return {m.get("key"): m.get("value") for m in obj.get("metadata") or []
                     if m.get("subject", 0) == 0}
     return {}
+
+
+def _default_name(value: Any) -> str | None:
+    """``default.audio.sink`` and the like hold ``{"name": "..."}`` (as JSON text or
+    already parsed)."""
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except ValueError:
+            return value or None
+    return value.get("name") if isinstance(value, dict) else None
+
+
+def _node_target(node: dict[str, Any] | None) -> dict[str, Any]:
+    props = ((node or {}).get("info") or {}).get("props") or {}
+    name = str(props.get("node.name") or "")
+    return {
+        "target": name or None,
+        "target_class": props.get("media.class"),
+        "target_rate": _format_rate(node) if node else None,
+        "echo_cancel": "echo-cancel" in name or "echo_cancel" in name
+                       or "echo-cancel" in str(props.get("factory.name") or ""),
+    }
+
+
+def target_facts(dump: list[dict[str, Any]], playback: str, capture: str) -> dict[str, Any]:
+    """Where our streams will go, read before they open (a client joining a running
+    graph may shift the streams' latency by a quantum, so the daemon does not probe the
+    graph once its streams run): the named nodes, or the server's defaults for
+    ``default``; each one's class, running rate and whether it is an echo-cancel filter."""
+    defaults = _metadata(dump, "default")
+    nodes = {((o.get("info") or {}).get("props") or {}).get("node.name"): o for o in dump
+             if o.get("type", "").endswith(":Node")}
+    out: dict[str, Any] = {}
+    for kind, name, key in (("playback", playback, "default.audio.sink"),
+                            ("capture", capture, "default.audio.source")):
+        if name in ("default", "pipewire", ""):
+            name = _default_name(defaults.get(key)) or ""
+        node = nodes.get(name)
+        out[kind] = _node_target(node) if node else {"target": name or None,
+                                                      "missing": True}
+    return out
 
 
 def _format_rate(node: dict[str, Any]) -> int | None:
@@ -128,7 +170,7 @@ def graph_facts(dump: list[dict[str, Any]], pid: int) -> dict[str, Any]:
     links = [o["info"] for o in dump if o.get("type", "").endswith(":Link") and o.get("info")]
     version = next((o["info"].get("version") for o in dump
                     if o.get("type", "").endswith(":Core") and o.get("info")), None)
-    s = _settings(dump)
+    s = _metadata(dump)
     out: dict[str, Any] = {
         "version": version,
         "clock_rate": _int(s.get("clock.rate")),
@@ -155,18 +197,9 @@ def graph_facts(dump: list[dict[str, Any]], pid: int) -> dict[str, Any]:
                  if (ln.get("output-node-id") if kind == "playback"
                      else ln.get("input-node-id")) == nid}
         peer = next((nodes[p] for p in sorted(x for x in peers if x in nodes)), None)
-        pprops = ((peer or {}).get("info") or {}).get("props") or {}
-        name = str(pprops.get("node.name") or "")
-        out[kind] = {
-            "node": props.get("node.name"),
-            "state": (node.get("info") or {}).get("state"),
-            "rate": _format_rate(node),
-            "target": name or None,
-            "target_class": pprops.get("media.class"),
-            "target_rate": _format_rate(peer) if peer else None,
-            "echo_cancel": "echo-cancel" in name or "echo_cancel" in name
-                           or "echo-cancel" in str(pprops.get("factory.name") or ""),
-        }
+        out[kind] = {"node": props.get("node.name"),
+                     "state": (node.get("info") or {}).get("state"),
+                     "rate": _format_rate(node), **_node_target(peer)}
     return out
 
 
