@@ -136,8 +136,8 @@ def check_answer(run: Run) -> None:
     seen = [(round(t - run.messages[0][0], 1), p.get("direction"), p.get("confidence"))
             for t, m in run.messages if m["topic"].endswith("/state")
             for p in [m["payload"]]]
-    assert [e["kind"] for e in run.events()] == ["reversed"], (run.events(), seen,
-                                                               run.stderr[-2000:])
+    assert [e["kind"] for e in run.events()] == ["reversed"], (run.events(), seen[-20:],
+                                                               run.stderr[-1500:])
     assert run.events()[0]["details"]["rotation"] == "cw"
     last = [s for s in run.topic("state") if s.get("direction") == "reversed"][-1]
     assert last["rotation"] == "cw" and last["rate_hz"] == pytest.approx(RATE, rel=0.05)
@@ -306,6 +306,32 @@ def test_the_server_restarted_under_the_daemon(graph48, alsa_baseline):
     assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
     st = run.last_stats()
     assert st["audio_restarts"] >= 1               # pulses are lost only across the reopen
+    check_no_loss(st)
+
+
+def test_nodes_suspended_under_the_daemon(graph48, alsa_baseline):
+    """The sink and the source are suspended 5 s into the run (``pw-cli send-command ID
+    Suspend {}``, as a session manager does to idle nodes). Tried and seen: the nodes
+    still say "running", no data flows, the capture gets silence, not a stall. The
+    daemon misses the pulses for 3 s, reopens its streams (which resumes the nodes) and
+    tracks again; the room's new session restarts the schedule."""
+    srv = graph48.server
+
+    def suspend() -> None:
+        for name in ("bladesonar_sink", "bladesonar_source"):
+            r = srv.run("pw-cli", "send-command", str(srv.node_id(name)), "Suspend", "{}")
+            assert r.returncode == 0, r.stderr
+
+    before = len(sessions(graph48.truth))
+    run = run_daemon(graph48.cfg, srv.env, RUN_S + 12, actions=((5.0, suspend),))
+    after = sessions(graph48.truth)[before:]
+    assert len(after) == 2, after
+    check_answer(run)
+    delay = reversal_delay(run, after[-1])
+    assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
+    st = run.last_stats()
+    assert st["audio_restarts"] >= 1
+    assert "no direct-coupling pulse through PipeWire" in run.stderr
     check_no_loss(st)
 
 

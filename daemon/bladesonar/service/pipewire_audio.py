@@ -47,6 +47,9 @@ STREAM_PROPS = {
 
 #: How long start() waits for a server that is (re)starting.
 CONNECT_WAIT_S = 8.0
+#: Seconds without a direct-coupling pulse (after they came back once) that mean the
+#: graph stopped carrying the streams (a suspended node): then they are reopened.
+SILENT_S = 3.0
 
 _NODE_NAME = re.compile(r"^[A-Za-z0-9_.:@+-]+$")
 
@@ -98,13 +101,14 @@ class StreamLatency:
         self._pos: int | None = None         # peak index within the PRI, last pulse
         self._cand: list[tuple[int, int]] = []    # (PRI start, peak place) before a lock
 
-    def push(self, x: np.ndarray, start_sample: int, discontinuity: bool = False) -> None:
+    def push(self, x: np.ndarray, start_sample: int, discontinuity: bool = False) -> bool:
+        """Follow one PRI of capture; whether it held a coupling peak."""
         a = np.abs(x)
         i = int(np.argmax(a))
         if a[i] <= self.PEAK_OVER_MEDIAN * max(float(np.median(a)), 1e-9):
             if self.samples is None:
                 self._cand.clear()
-            return
+            return False
         if self.samples is None:
             if self._cand:
                 at, place = self._cand[-1]
@@ -112,7 +116,7 @@ class StreamLatency:
                     self._cand.clear()
             self._cand.append((start_sample, i))
             if len(self._cand) < self.LOCK:
-                return
+                return True
             at, place = self._cand[0]
             self.first = at + place
             self.samples = self.first + (i - place)
@@ -126,16 +130,21 @@ class StreamLatency:
         self._pos = i
         self.lo = self.samples if self.lo is None else min(self.lo, self.samples)
         self.hi = self.samples if self.hi is None else max(self.hi, self.samples)
+        return True
 
 
 class PipeWireAudio(AlsaAudio):
     """``audio.backend: pipewire``; see the module docstring."""
+
+    #: a server that went away makes every read and write fail at once with -EPIPE
+    MAX_XRUNS_IN_A_ROW = 20
 
     def __init__(self, cfg: Any, server: sound_server.SoundServer | None = None) -> None:
         super().__init__(cfg)
         self.server = server
         self.graph: dict[str, Any] = {}
         self.latency = StreamLatency(self.pri)
+        self._lost_pulses = 0
 
     # -- opening -------------------------------------------------------------------------
 
@@ -165,14 +174,20 @@ class PipeWireAudio(AlsaAudio):
         pulse schedule) and the nodes the streams will go to (logged, in stats). Not
         probed again once the streams run: a client joining the graph was seen to shift
         the latency between the streams by a quantum."""
-        dump = sound_server.pw_dump()
-        if dump is None:
-            log.warning("pw-dump (pipewire-bin) gave no graph: the rate and the targets are "
-                        "not checked")
-            return
         a = self.cfg.audio
-        facts = sound_server.graph_facts(dump, os.getpid())
-        facts.update(sound_server.target_facts(dump, a.playback_device, a.capture_device))
+        deadline = time.monotonic() + CONNECT_WAIT_S
+        while True:
+            dump = sound_server.pw_dump()
+            if dump is None:
+                log.warning("pw-dump (pipewire-bin) gave no graph: the rate and the targets "
+                            "are not checked")
+                return
+            facts = sound_server.graph_facts(dump, os.getpid())
+            facts.update(sound_server.target_facts(dump, a.playback_device, a.capture_device))
+            missing = facts["playback"].get("missing") or facts["capture"].get("missing")
+            if not missing or time.monotonic() > deadline:
+                break
+            time.sleep(0.25)     # a (re)starting server's nodes appear after its socket
         self.graph = facts
         want = int(a.sample_rate)
         forced = facts.get("force_rate")
@@ -222,16 +237,37 @@ class PipeWireAudio(AlsaAudio):
             raise
         self._start_threads()
 
+    def _seen(self, b: PulseBlock) -> None:
+        if self.latency.push(b.samples, b.start_sample, b.discontinuity) \
+                or self.latency.samples is None:
+            self._lost_pulses = 0
+            return
+        self._lost_pulses += 1
+        if self._lost_pulses * self.pri > SILENT_S * self.cfg.audio.sample_rate \
+                and self.failure is None:
+            # the pulses came back, then stopped: a node suspended or taken away under
+            # the streams (the graph then feeds silence, not a stall). Ending the path
+            # makes the daemon reopen the streams, which resumes the nodes; a speaker
+            # muted for good costs a reopen every few seconds, nothing else
+            self.failure = f"no direct-coupling pulse through PipeWire for {SILENT_S:g} s"
+            log.warning("%s: the streams' nodes are suspended or gone; reopening",
+                        self.failure)
+            self._ring.close()
+            self._stop.set()
+
     def read_pulse(self, timeout: float) -> PulseBlock | None:
-        b = super().read_pulse(timeout)
+        b = super().read_pulse(timeout) if not self._stop.is_set() else None
         if b is not None:
-            self.latency.push(b.samples, b.start_sample, b.discontinuity)
+            self._seen(b)
         return b
 
     def read_pulses(self, n: int, timeout: float) -> list[PulseBlock]:
+        if self._stop.is_set():
+            time.sleep(max(0.0, min(timeout, 0.5)))   # a closed path: wait like a stall
+            return []
         got = super().read_pulses(n, timeout)
         for b in got:
-            self.latency.push(b.samples, b.start_sample, b.discontinuity)
+            self._seen(b)
         return got
 
     def stats(self) -> dict[str, Any]:
