@@ -28,7 +28,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.alsa, pytest.mark.pipewire]
 RATE = 0.45                 # Hz, the fan
 REVERSE_AT = 12.0           # s into each session
 SCHEDULE = f"ccw:{RATE}:{REVERSE_AT},cw:{RATE}:600"
-RUN_S = 24.0
+RUN_S = 30.0
 REF_S = 10
 
 
@@ -99,13 +99,13 @@ def reversal_delay(run: Run, session: dict[str, float]) -> float:
     return t - (session["session_started_at"] + session["answer_delay_s"] + REVERSE_AT)
 
 
-def record_reference(cfg: Path, env: dict[str, str]) -> None:
+def record_reference(cfg: Path, env: dict[str, str], rel: float = 0.005) -> None:
     r = subprocess.run(bladesonar_cmd("reference", "--live", "--seconds", str(REF_S),
                                       "--direction", "ccw", "--config", str(cfg)),
                        env=env, capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
-    assert summary["rate_hz"] == pytest.approx(RATE, rel=0.005)
+    assert summary["rate_hz"] == pytest.approx(RATE, rel=rel)
 
 
 def daemon_config(d: Path, **audio: Any) -> Path:
@@ -136,8 +136,9 @@ def check_answer(run: Run) -> None:
     seen = [(round(t - run.messages[0][0], 1), p.get("direction"), p.get("confidence"))
             for t, m in run.messages if m["topic"].endswith("/state")
             for p in [m["payload"]]]
-    assert [e["kind"] for e in run.events()] == ["reversed"], (run.events(), seen[-20:],
-                                                               run.stderr[-1500:])
+    print("states (s after the first message, direction, confidence):", seen)
+    print("daemon log:", run.stderr[-3000:])
+    assert [e["kind"] for e in run.events()] == ["reversed"], run.events()
     assert run.events()[0]["details"]["rotation"] == "cw"
     last = [s for s in run.topic("state") if s.get("direction") == "reversed"][-1]
     assert last["rotation"] == "cw" and last["rate_hz"] == pytest.approx(RATE, rel=0.05)
@@ -180,7 +181,9 @@ class Graph:
         try:
             self.room = PwRoomProcess(self.server, self.cfg, SCHEDULE, noise=1e-4,
                                       truth=self.truth)
-            record_reference(self.cfg, self.server.env)
+            # a latency jump of one quantum in the first second (docs/audio.md) was
+            # seen to cost the reference up to 0.5 % of its rate on a busy host
+            record_reference(self.cfg, self.server.env, rel=0.01)
         except BaseException:
             self.close()
             raise

@@ -36,6 +36,9 @@ from .room import Room
 log = logging.getLogger(__name__)
 
 SINK = "bladesonar_sink"
+#: Both null nodes and the room's streams are scheduled as one group, under one driver,
+#: whoever else joins the graph
+GROUP = "bladesonar-room"
 SOURCE = "bladesonar_source"
 #: The room's own ALSA period (samples) and buffer (periods): deep, so that a busy
 #: machine does not starve the room's playback (an underrun would shift its delay).
@@ -51,7 +54,7 @@ def node_commands(sink: str = SINK, source: str = SOURCE) -> list[list[str]]:
     """``pw-cli`` commands that create the room's two null nodes (mono, lingering)."""
     return [["pw-cli", "create-node", "adapter",
              f"{{ factory.name=support.null-audio-sink node.name={name} media.class={cls} "
-             "object.linger=true audio.position=[MONO] }"]
+             f"object.linger=true audio.position=[MONO] node.group={GROUP} }}"]
             for name, cls in ((sink, "Audio/Sink"), (source, "Audio/Source/Virtual"))]
 
 
@@ -96,7 +99,8 @@ class PwRoom(Room):
                 raise AudioDeviceError("the room found no PipeWire server")
             time.sleep(0.2)
         self._ensure_nodes(deadline)
-        base = {"node.dont-reconnect": "true", "application.name": "bladesonar-room"}
+        base = {"node.dont-reconnect": "true", "application.name": "bladesonar-room",
+                "node.group": GROUP}
         self._cap = self._pcm(alsa, "capture", self.sink,
                               {**base, "stream.capture.sink": "true",
                                "node.name": "bladesonar-room-in"})
