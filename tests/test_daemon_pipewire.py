@@ -26,8 +26,8 @@ from pipewire_server import PipeWireServer, PwRoomProcess, require_pipewire
 pytestmark = [pytest.mark.slow, pytest.mark.alsa, pytest.mark.pipewire]
 
 RATE = 0.45                 # Hz, the fan
-REVERSE_AT = 12.0           # s into each session
-SCHEDULE = f"ccw:{RATE}:{REVERSE_AT},cw:{RATE}:600"
+REVERSE_AT = 12.0           # s into each session: the fan passes through zero
+SCHEDULE = f"ccw:{RATE}:10,cw:{RATE}:600~4"     # a real fan's reversal: a 4 s ramp
 RUN_S = 30.0
 REF_S = 10
 
