@@ -83,6 +83,9 @@ def run_daemon(cfg: Path, env: dict[str, str], seconds: float,
         _, out.stderr = proc.communicate()
     t.join(5)
     out.rc = proc.returncode
+    with open(cfg.parent / "messages.jsonl", "a", encoding="utf-8") as f:   # post-mortem
+        for at, m in out.messages:
+            f.write(json.dumps({"at": at, **m}) + "\n")
     return out
 
 
