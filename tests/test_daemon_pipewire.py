@@ -274,6 +274,7 @@ def test_daemon_at_48k_answers_like_the_alsa_loopback(graph48, alsa_baseline):
     run = run_daemon(graph48.cfg, graph48.server.env, RUN_S)
     check_answer(run)
     delay = reversal_delay(run, graph48.last_session())
+    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa_baseline['delay']:.2f} s")
     assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
     st = run.last_stats()
     check_no_loss(st)
@@ -290,6 +291,7 @@ def test_a_quantum_change_mid_run_changes_nothing_a_subscriber_sees(graph48, als
                               (16.0, lambda: srv.force_quantum(0))))
     check_answer(run)
     delay = reversal_delay(run, graph48.last_session())
+    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa_baseline['delay']:.2f} s")
     assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
     st = run.last_stats()
     check_no_loss(st)
@@ -309,6 +311,7 @@ def test_the_server_restarted_under_the_daemon(graph48, alsa_baseline):
     assert len(after) == 2, after                  # before the restart, and after it
     check_answer(run)
     delay = reversal_delay(run, after[-1])
+    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa_baseline['delay']:.2f} s")
     assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
     st = run.last_stats()
     assert st["audio_restarts"] >= 1               # pulses are lost only across the reopen
@@ -334,6 +337,7 @@ def test_nodes_suspended_under_the_daemon(graph48, alsa_baseline):
     assert len(after) == 2, after
     check_answer(run)
     delay = reversal_delay(run, after[-1])
+    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa_baseline['delay']:.2f} s")
     assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
     st = run.last_stats()
     assert st["audio_restarts"] >= 1
@@ -354,6 +358,7 @@ def test_daemon_at_44k1_answers_like_the_alsa_loopback(graph44, alsa_baseline):
     run = run_daemon(graph44.cfg, graph44.server.env, RUN_S)
     check_answer(run)
     delay = reversal_delay(run, graph44.last_session())
+    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa_baseline['delay']:.2f} s")
     assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
     st = run.last_stats()
     check_no_loss(st)
