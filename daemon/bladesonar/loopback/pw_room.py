@@ -12,7 +12,7 @@ A virtual source takes no automatic links from the session manager (streams are 
 linked to sinks), so the room's playback stream is created with ``node.autoconnect =
 false`` and linked to the source's input port with ``pw-link``. The schedule starts when
 the daemon's first pulse arrives and starts again after half a second of silence (the
-next session: a reference, then the daemon).
+next session: a reference, then the daemon), or after the graph stalled for as long.
 """
 
 from __future__ import annotations
@@ -78,6 +78,7 @@ class PwRoom(Room):
         self._play: Any = None
         self.sessions = 0
         self.reconnects = 0
+        self._underruns = 0
 
     # -- the graph side ------------------------------------------------------------------
 
@@ -162,7 +163,12 @@ class PwRoom(Room):
             x = x + self.noise_sigma * self._rng.standard_normal(n)
         got = self._play.write(encode(x, self.fmt))
         if got < 0:
+            self._underruns += 1
+            if self._underruns >= 20:
+                raise AudioDeviceError("room playback: the server is gone")
             log.warning("room playback underrun")
+        else:
+            self._underruns = 0
         self._acc = self._acc[n:]
         self._acc_start += n
         self.stats.periods_captured += 1
@@ -203,17 +209,28 @@ class PwRoom(Room):
         silent = 0               # consecutive silent samples
         gap = int(SESSION_GAP_S * self.fs)
         active = False
+        overruns = 0             # in a row
         t_start = time.monotonic()
         while not should_stop():
             if max_seconds is not None and time.monotonic() - t_start > max_seconds:
                 self.stats.ended_by = "time limit"
                 return
+            t_read = time.monotonic()
             n, data = self._cap.read()
+            if active and time.monotonic() - t_read > SESSION_GAP_S:
+                # the graph stopped (a suspended node): the daemon's next sound is a new
+                # session, as after silence
+                active, block = False, np.zeros(0)
+                log.info("session %d ended (the graph stalled)", self.sessions)
             if n < 0:
                 if n != -32:
                     raise AudioDeviceError(f"room capture failed with error {n}")
+                overruns += 1
+                if overruns >= 20:       # every read fails at once: the server is gone
+                    raise AudioDeviceError("room capture: the server is gone")
                 log.warning("room capture overrun")
                 continue
+            overruns = 0
             x = decode(data, self.fmt)
             pos, cin = cin, cin + len(x)
             loud = np.flatnonzero(np.abs(x) > 1e-4)

@@ -8,8 +8,8 @@ and sample grid; the backend makes sure nothing is resampled (our rate must be t
 graph's) and asks, through the stream properties, that the server neither moves, pauses
 nor suspends our streams. Echo cancellation, AGC and noise suppression in PipeWire are
 filter nodes (module-echo-cancel), not stream properties: a stream linked to the device
-node directly never passes through them, and the backend says when one of ours is linked
-to such a filter.
+node directly never passes through them, and the backend says when a stream of ours
+would go to such a filter.
 """
 
 from __future__ import annotations
