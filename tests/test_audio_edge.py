@@ -95,7 +95,7 @@ def test_unknown_backend_is_a_clear_error():
     cfg = config.from_mapping({})
     # past validation on purpose (load_config refuses it earlier, naming the key)
     bad = dataclasses.replace(cfg, audio=dataclasses.replace(cfg.audio, backend="pulse"))
-    with pytest.raises(AudioDeviceError, match="alsa or sim"):
+    with pytest.raises(AudioDeviceError, match="alsa, pipewire, auto or sim"):
         open_audio(bad)
 
 

@@ -15,7 +15,7 @@ from bladesonar.io.config_file import load_config
 @pytest.mark.parametrize("data, key, words", [
     ({"scene": {"blades": 0}}, "scene.blades", "from 1 to 16"),
     ({"scene": {"blade": 3}}, "scene.blade", "did you mean scene.blades"),
-    ({"audio": {"backend": "pulse"}}, "audio.backend", "one of alsa, sim"),
+    ({"audio": {"backend": "pulse"}}, "audio.backend", "one of alsa, pipewire, auto, sim"),
     ({"audio": {"sample_rate": 44100.5}}, "audio.sample_rate", "integer"),
     ({"waveform": {"pri_samples": "1297"}}, "waveform.pri_samples", "integer"),
     ({"waveform": {"amplitude": 0}}, "waveform.amplitude", "above 0"),

@@ -26,12 +26,16 @@ MAX_SCHEDULE = 1 << 16
 
 @dataclass(frozen=True)
 class AudioSettings:
-    backend: str = opt("alsa", "where pulses are played and recorded: a real ALSA card, "
-                       "or the in-process scene simulator", choices=("alsa", "sim"))
+    backend: str = opt("alsa", "where pulses are played and recorded: a bare ALSA card, "
+                       "a PipeWire server's graph (phones, desktop images), auto (PipeWire "
+                       "if one runs, else ALSA; PulseAudio is refused), or the in-process "
+                       "scene simulator", choices=("alsa", "pipewire", "auto", "sim"))
     sample_rate: int = opt(44100, "sample rate of playback and capture", lo=8000,
                            hi=192000, unit="Hz")
-    playback_device: str = opt("default", "ALSA PCM name for the speaker")
-    capture_device: str = opt("default", "ALSA PCM name for the microphone")
+    playback_device: str = opt("default", "ALSA PCM name for the speaker (pipewire: the "
+                               "sink's node.name; default: the server's default sink)")
+    capture_device: str = opt("default", "ALSA PCM name for the microphone (pipewire: the "
+                              "source's node.name; default: the server's default source)")
     format: str = opt("S16_LE", "ALSA sample format of both streams",
                       choices=("S16_LE", "S32_LE"))
     period_pulses: int = opt(4, "ALSA period in PRIs: the audio threads wake once a period "

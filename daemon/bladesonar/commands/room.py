@@ -32,8 +32,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", metavar="SCENE", help="scene file; default: sim.scene")
     p.add_argument("--schedule", metavar="SPEC", help="rotation DIR:RATE_HZ:SECONDS,...; "
                    "default: sim.schedule")
-    p.add_argument("--dir", required=True, metavar="DIR", help="folder for the FIFOs and the "
-                   "ALSA config (created)")
+    p.add_argument("--dir", metavar="DIR", help="folder for the FIFOs and the ALSA config "
+                   "(created; needed without --pipewire)")
+    p.add_argument("--pipewire", action="store_true", help="serve on the running PipeWire "
+                   "graph instead: record the sink's monitor, answer into the virtual source "
+                   "(both created if missing); the daemon uses audio.backend: pipewire")
+    p.add_argument("--sink", default="bladesonar_sink", metavar="NODE",
+                   help="--pipewire: the sink the daemon plays into (default %(default)s)")
+    p.add_argument("--source", default="bladesonar_source", metavar="NODE",
+                   help="--pipewire: the virtual source the daemon records (default "
+                   "%(default)s)")
     p.add_argument("--realtime", action="store_true", help="pace the capture at the sample "
                    "rate (default: as fast as the daemon reads)")
     p.add_argument("--latency", type=int, metavar="SAMPLES", help="capture delay of the "
@@ -55,12 +63,18 @@ def run(args: argparse.Namespace) -> int:
     import sys
     from pathlib import Path
 
+    from ..errors import InputError
     from ..io.config_file import load_config
     from ..io.scene_file import load_scene
     from ..loopback import CAP_PCM, PLAY_PCM, Room, write_alsa_config
 
     cfg = load_config(args.config)
     scene = load_scene(args.scene or cfg.path(cfg.sim.scene))
+    if args.pipewire:
+        return _run_pipewire(args, cfg, scene)
+    if not args.dir:
+        raise InputError("--dir DIR is needed (the FIFOs and the ALSA config go there), "
+                         "or --pipewire")
     d = Path(args.dir)
     d.mkdir(parents=True, exist_ok=True)
     fifo_play, fifo_cap = d / "play.fifo", d / "cap.fifo"
@@ -102,4 +116,37 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if truth is not None:
             truth.close()
+    return 0
+
+
+def _run_pipewire(args: argparse.Namespace, cfg: object, scene: object) -> int:
+    import signal
+    import sys
+
+    from ..loopback.pw_room import PwRoom
+
+    stop = {"now": False}
+
+    def on_signal(*_: object) -> None:
+        stop["now"] = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    truth = open(args.truth, "w", encoding="utf-8") if args.truth else None
+    room = PwRoom(scene, cfg, args.schedule or cfg.sim.schedule,  # type: ignore[attr-defined]
+                  sink=args.sink, source=args.source, noise_sigma=args.noise, seed=args.seed,
+                  truth=truth)
+    try:
+        room.open()
+        print(f"playback_device: {room.sink}\ncapture_device: {room.source}\n"
+              f"format: {room.fmt}  rate: {int(room.fs)}  pri_samples: {room.pri}  "
+              f"latency: {room.prime + room.latency} + the graph's")
+        print("ready", flush=True)
+        st = room.serve(max_seconds=args.seconds, should_stop=lambda: stop["now"])
+    finally:
+        room.close()
+        if truth is not None:
+            truth.close()
+    print(f"{room.sessions} sessions, {st.periods_played} blocks answered, "
+          f"{room.reconnects} reconnects, ended: {st.ended_by}", file=sys.stderr, flush=True)
     return 0

@@ -222,6 +222,10 @@ class Room:
             if self._t0 is None:
                 self._t0 = time.monotonic()
                 log.info("daemon connected: answering its pulses")
+                # paced, the pre-written silence is read at once, and the period holding
+                # the answer to played sample n goes out when its last sample is due
+                self._truth_session(((self.latency % self.unit) + self.unit) / self.fs
+                                    if self.realtime else 0.0)
             buf += data
             if len(buf) < self.period_bytes:
                 continue
@@ -236,15 +240,25 @@ class Room:
         self.stats.seconds = time.monotonic() - (self._t0 or t_open)
         return self.stats
 
-    def _answer(self, k: int, played: np.ndarray) -> None:
-        """Echoes of played block k (fan static during the block), overlap-added."""
+    def _truth_session(self, answer_delay_s: float) -> None:
+        """A truth line for a session's start: when its pulse 0 reached the room (wall
+        clock), and how much later the room's answer to a block enters the capture."""
+        if self.truth is not None:
+            self.truth.write(json.dumps({"session_started_at": time.time(),
+                                         "answer_delay_s": answer_delay_s}) + "\n")
+            self.truth.flush()
+
+    def _answer(self, k: int, played: np.ndarray, at_sample: int | None = None) -> None:
+        """Echoes of played block k (fan static during the block), overlap-added at
+        capture sample ``at_sample`` (default: latency + k * pri)."""
         from ..sim.render import echo_response
 
         t = k * self.pri / self.fs
         angle = float(self.schedule.angle_at(np.array([t]), self.scene.start_angle_rad)[0])
         h = echo_response(self.scene, self.cfg, angle, self.ir_samples)
         y = fftconvolve(played, h) if np.any(played) else np.zeros(len(played) + len(h) - 1)
-        at = self.latency + k * self.pri - self._acc_start
+        at = (self.latency + k * self.pri if at_sample is None else at_sample) \
+            - self._acc_start
         need = at + len(y)
         if need > len(self._acc):
             self._acc = np.concatenate([self._acc, np.zeros(need - len(self._acc))])

@@ -70,6 +70,10 @@ class TxSource:
 class AlsaAudio:
     """``audio.backend: alsa``; see the module docstring. Implements ``AudioIO``."""
 
+    #: xruns in a row, with no data between them, after which the device is taken to be
+    #: gone (the thread ends, the daemon reopens the path); None: never (a card)
+    MAX_XRUNS_IN_A_ROW: int | None = None
+
     def __init__(self, cfg: Any) -> None:
         self.cfg = cfg
         self.pri = int(cfg.waveform.pri_samples)
@@ -142,6 +146,9 @@ class AlsaAudio:
             self._play.close()
             self._play = None
             raise
+        self._start_threads()
+
+    def _start_threads(self) -> None:
         self._threads = [threading.Thread(target=self._guard, args=(self._playback_loop,),
                                           name="bladesonar-playback", daemon=True),
                          threading.Thread(target=self._guard, args=(self._capture_loop,),
@@ -163,17 +170,26 @@ class AlsaAudio:
         finally:
             self._ring.close()
 
+    def _gone(self, in_a_row: int, kind: str) -> None:
+        if self.MAX_XRUNS_IN_A_ROW is not None and in_a_row >= self.MAX_XRUNS_IN_A_ROW:
+            raise AudioDeviceError(f"{kind}: {in_a_row} xruns in a row with no data between "
+                                   "them: the device or the server is gone")
+
     def _playback_loop(self) -> None:
         pcm, period = self._play, self.period
+        in_a_row = 0
         while not self._stop.is_set():
             n = pcm.write(self._tx.chunk(self.samples_written, period))
             if n < 0:
                 if n != -EPIPE:
                     raise AudioDeviceError(f"playback write failed with error {n}")
+                in_a_row += 1
+                self._gone(in_a_row, "playback")
                 self.xruns_playback += 1
                 self._flag_next.set()
                 log.warning("playback underrun (%d so far)", self.xruns_playback)
                 continue
+            in_a_row = 0
             self.samples_written += n
             self.periods_written = self.samples_written // self.pri   # PRIs, like periods_read
 
@@ -183,12 +199,15 @@ class AlsaAudio:
         start = 0          # capture-stream index of pending[0]
         disc = False
         t_last = time.monotonic()
+        in_a_row = 0
         while not self._stop.is_set():
             n, data = pcm.read()
             now = time.monotonic()
             if n < 0:
                 if n != -EPIPE:
                     raise AudioDeviceError(f"capture read failed with error {n}")
+                in_a_row += 1
+                self._gone(in_a_row, "capture")
                 self.xruns_capture += 1
                 # the stream restarts: what was lost is known only from the clock; keep
                 # whole periods and always at least one, so the gap is visible downstream
@@ -199,6 +218,7 @@ class AlsaAudio:
                 log.warning("capture overrun (%d so far)", self.xruns_capture)
                 continue
             t_last = now
+            in_a_row = 0
             pending += data
             while len(pending) >= self.period_bytes:
                 if self._flag_next.is_set():
@@ -220,7 +240,7 @@ class AlsaAudio:
     def read_pulses(self, n: int, timeout: float) -> list[PulseBlock]:
         return [self._decoder(raw) for raw in self._ring.get_batch(n, timeout)]
 
-    def stats(self) -> dict[str, int]:
+    def stats(self) -> dict[str, Any]:
         return {"xruns_playback": self.xruns_playback, "xruns_capture": self.xruns_capture,
                 "ring_overflows": self._ring.overflows, "periods_written": self.periods_written,
                 "periods_read": self.periods_read, "periods_delivered": self._decoder.delivered,

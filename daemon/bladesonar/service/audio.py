@@ -1,4 +1,5 @@
-"""The daemon's audio edge: one interface, two backends (a real ALSA card, the simulator).
+"""The daemon's audio edge: one interface, three backends (a real ALSA card, PipeWire,
+the simulator).
 
 The processing loop asks for the pulse repetition intervals (PRIs) of capture of one
 analysis block at a time (``daemon.block_pulses``; one while it only records). Every
@@ -54,9 +55,10 @@ class AudioIO(Protocol):
         pulses it analyses together, not once per PRI."""
         ...
 
-    def stats(self) -> dict[str, int]:
+    def stats(self) -> dict[str, Any]:
         """Health counters: xruns_playback, xruns_capture, ring_overflows,
-        periods_written, periods_read, periods_delivered."""
+        periods_written, periods_read, periods_delivered (integers, summed across
+        reopens); a sound-server backend adds what it found (other values)."""
         ...
 
     def stop(self, timeout: float = 2.0) -> None: ...

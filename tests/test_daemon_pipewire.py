@@ -1,0 +1,382 @@
+"""The daemon through a real, headless PipeWire (tests/pipewire_server.py): the loopback
+room answers from the sink's monitor into a virtual source, and `bladesonar run` runs
+unchanged with audio.backend: pipewire. Its answers are held against the ALSA FIFO
+loopback's on the same schedule (events, detection delay within 0.3 s, no dropped pulses)
+at 48 and 44.1 kHz, through a quantum change and a server restart under the daemon."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from bladesonar.io.config_file import load_config
+from loopback import ROOT, RoomProcess, bladesonar_cmd, require_alsa, write_config
+from pipewire_server import PipeWireServer, PwRoomProcess, require_pipewire
+
+pytestmark = [pytest.mark.slow, pytest.mark.alsa, pytest.mark.pipewire]
+
+RATE = 0.45                 # Hz, the fan
+REVERSE_AT = 12.0           # s into each session: the fan passes through zero
+SCHEDULE = f"ccw:{RATE}:10,cw:{RATE}:600~4"     # a real fan's reversal: a 4 s ramp
+RUN_S = 30.0
+REF_S = 10
+
+
+def pri_for(fs: int) -> int:
+    """The default PRI (1297 samples at 44.1 kHz) at another rate: the same pulse rate."""
+    return round(1297 * fs / 44100)
+
+
+@dataclass
+class Run:
+    messages: list[tuple[float, dict[str, Any]]] = field(default_factory=list)
+    stderr: str = ""
+    rc: int | None = None
+
+    def topic(self, name: str) -> list[Any]:
+        return [m["payload"] for _, m in self.messages if m["topic"].endswith("/" + name)]
+
+    def events(self) -> list[dict[str, Any]]:
+        return self.topic("event")
+
+    def last_stats(self) -> dict[str, Any]:
+        return [s for s in self.topic("stats") if s.get("pulses_processed")][-1]
+
+
+def run_daemon(cfg: Path, env: dict[str, str], seconds: float,
+               actions: tuple[tuple[float, Callable[[], None]], ...] = ()) -> Run:
+    """`bladesonar run --seconds` with no broker (messages are JSON lines on stdout);
+    ``actions`` are done at their times (s after the start) while it runs."""
+    proc = subprocess.Popen(bladesonar_cmd("run", "--config", str(cfg), "--seconds",
+                                           str(seconds)), env=env, cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out = Run()
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            try:
+                out.messages.append((time.time(), json.loads(line)))
+            except ValueError:
+                pass
+
+    t = threading.Thread(target=read, daemon=True)
+    t.start()
+    t0 = time.monotonic()
+    for at, act in sorted(actions, key=lambda a: a[0]):
+        time.sleep(max(0.0, at - (time.monotonic() - t0)))
+        act()
+    try:
+        _, out.stderr = proc.communicate(timeout=seconds + 60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, out.stderr = proc.communicate()
+    t.join(5)
+    out.rc = proc.returncode
+    with open(cfg.parent / "messages.jsonl", "a", encoding="utf-8") as f:   # post-mortem
+        for at, m in out.messages:
+            f.write(json.dumps({"at": at, **m}) + "\n")
+    with open(cfg.parent / "daemon.log", "a", encoding="utf-8") as f:
+        f.write(out.stderr)
+    return out
+
+
+def sessions(truth: Path) -> list[dict[str, float]]:
+    return [json.loads(ln) for ln in truth.read_text().splitlines()
+            if "session_started_at" in ln]
+
+
+def reversal_delay(run: Run, session: dict[str, float]) -> float:
+    """Seconds from the reversal's echo reaching the daemon's capture to the event."""
+    ev = [e for e in run.events() if e["kind"] == "reversed"]
+    assert ev, run.events()
+    t = datetime.fromisoformat(ev[0]["time"]).timestamp()
+    return t - (session["session_started_at"] + session["answer_delay_s"] + REVERSE_AT)
+
+
+def record_reference(cfg: Path, env: dict[str, str], rel: float = 0.005) -> None:
+    r = subprocess.run(bladesonar_cmd("reference", "--live", "--seconds", str(REF_S),
+                                      "--direction", "ccw", "--config", str(cfg)),
+                       env=env, capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stdout)
+    assert summary["rate_hz"] == pytest.approx(RATE, rel=rel)
+
+
+def daemon_config(d: Path, **audio: Any) -> Path:
+    fs = int(audio.get("sample_rate", 44100))
+    return write_config(d / "cfg.yaml", d / "state", audio=audio, daemon={"window_s": 3},
+                        waveform={"pri_samples": pri_for(fs)},
+                        mqtt={"publish_interval_s": 1, "stats_interval_s": 2})
+
+
+#: Pulses the aligner gives up re-acquiring the edge after a latency jump (seen: 6-8)
+PULSES_PER_JUMP = 12
+
+
+def check_no_loss(st: dict[str, Any]) -> None:
+    """No xruns; pulses are dropped only where the latency between the streams jumped.
+
+    On this harness, on a busy host, the latency through the graph was seen to step by
+    one quantum and back now and then (docs/audio.md); each step costs the aligner a
+    re-acquisition of a few pulses, never an event."""
+    assert st["xruns"] == 0, st
+    jumps = st["audio"]["sound_server"]["stream_latency_jumps"]
+    assert st["dropped_pulses"] <= PULSES_PER_JUMP * jumps, st
+
+
+def check_answer(run: Run) -> None:
+    """What a subscriber must get on this schedule: one reversal to cw, the rate."""
+    assert run.rc == 0, run.stderr[-3000:]
+    seen = [(round(t - run.messages[0][0], 1), p.get("direction"), p.get("confidence"))
+            for t, m in run.messages if m["topic"].endswith("/state")
+            for p in [m["payload"]]]
+    print("states (s after the first message, direction, confidence):", seen)
+    print("daemon log:", run.stderr[-3000:])
+    assert [e["kind"] for e in run.events()] == ["reversed"], run.events()
+    assert run.events()[0]["details"]["rotation"] == "cw"
+    last = [s for s in run.topic("state") if s.get("direction") == "reversed"][-1]
+    assert last["rotation"] == "cw" and last["rate_hz"] == pytest.approx(RATE, rel=0.05)
+
+
+# -- the ALSA loopback on the same schedule: the answers to match ------------------------
+
+
+@pytest.fixture(scope="module")
+def alsa_baseline(tmp_path_factory) -> dict[str, Any]:
+    require_alsa()
+    d = tmp_path_factory.mktemp("alsa")
+    cfg = daemon_config(d, backend="alsa", playback_device="bladesonar_play",
+                        capture_device="bladesonar_cap")
+    with RoomProcess(cfg, d / "room0", f"ccw:{RATE}:60", realtime=False) as room:
+        record_reference(cfg, room.env)
+    truth = d / "truth.jsonl"
+    with RoomProcess(cfg, d / "room1", SCHEDULE, realtime=True, noise=1e-4,
+                     truth=truth) as room:
+        run = run_daemon(cfg, room.env, RUN_S)
+        room.stop(grace=5.0)
+    check_answer(run)
+    st = run.last_stats()
+    return {"delay": reversal_delay(run, sessions(truth)[0]), "stats": st}
+
+
+# -- PipeWire ------------------------------------------------------------------------------
+
+
+class Graph:
+    """A headless server at ``fs``, its room, and a reference recorded through it."""
+
+    def __init__(self, d: Path, fs: int) -> None:
+        self.server = PipeWireServer(d / "pw", rate=fs).start()
+        self.room: PwRoomProcess | None = None
+        self.cfg = daemon_config(d, backend="pipewire", sample_rate=fs,
+                                 playback_device="bladesonar_sink",
+                                 capture_device="bladesonar_source")
+        self.truth = d / "truth.jsonl"
+        try:
+            self.room = PwRoomProcess(self.server, self.cfg, SCHEDULE, noise=1e-4,
+                                      truth=self.truth)
+            # a latency jump of one quantum in the first second (docs/audio.md) was
+            # seen to cost the reference up to 0.5 % of its rate on a busy host
+            record_reference(self.cfg, self.server.env, rel=0.01)
+        except BaseException:
+            self.close()
+            raise
+
+    def last_session(self) -> dict[str, float]:
+        return sessions(self.truth)[-1]
+
+    def close(self) -> str:
+        log = self.room.stop() if self.room is not None else ""
+        self.server.stop()
+        return log
+
+
+@pytest.fixture(scope="module")
+def graph48(tmp_path_factory):
+    require_pipewire()
+    require_alsa()
+    g = Graph(tmp_path_factory.mktemp("pw48"), 48000)
+    yield g
+    g.close()
+
+
+def check_pipewire_stats(st: dict[str, Any], fs: int) -> None:
+    ss = st["audio"]["sound_server"]
+    assert ss["server"] == "pipewire" and ss["path"] == "pipewire-alsa"
+    assert ss["graph_rate"] == fs and ss["resampled"] is False
+    assert ss["playback_target"] == "bladesonar_sink"
+    assert ss["capture_target"] == "bladesonar_source"
+    assert ss["echo_cancel"] is False
+    assert ss["stream_latency_ms"] is not None and ss["stream_latency_ms"] > 0
+
+
+def test_backend_capture_is_prf_locked_and_sample_exact_through_pipewire(graph48,
+                                                                          monkeypatch):
+    """Pulse k is played at sample k * pri into the sink; the room's direct coupling
+    (gain 1, amplitude 0.5: an exact S16 code) comes back through the graph at one
+    place of every PRI: one clock, one sample grid, nothing resampled."""
+    from bladesonar.service.pipewire_audio import PipeWireAudio
+
+    for k, v in graph48.server.env.items():
+        monkeypatch.setenv(k, v)
+    cfg = load_config(graph48.cfg)
+    pri = cfg.waveform.pri_samples
+    audio = PipeWireAudio(cfg)
+    audio.start()
+    try:
+        got = [audio.read_pulse(timeout=5.0) for _ in range(150)]
+        st = audio.stats()
+        dump = json.loads(graph48.server.run("pw-dump").stdout)   # our streams, as the
+    finally:                                                      # server holds them
+        audio.stop()
+    ours = [o["info"]["props"] for o in dump if o.get("type", "").endswith(":Node")
+            and o["info"]["props"].get("application.name") == "bladesonar"]
+    assert sorted(p["media.class"] for p in ours) == ["Stream/Input/Audio",
+                                                      "Stream/Output/Audio"]
+    for p in ours:
+        assert p["node.dont-reconnect"] is True and p["node.pause-on-idle"] is False
+        assert p["media.role"] == "Production" and p["node.rate"] == "1/48000"
+    assert {p["target.object"] for p in ours} == {"bladesonar_sink", "bladesonar_source"}
+    blocks = [b for b in got if b is not None]
+    assert [b.start_sample for b in blocks] == [k * pri for k in range(150)]
+    x = np.array([b.samples for b in blocks])
+    first = int(np.argmax(np.abs(x).max(axis=1) > 0.25))     # pulses start coming back
+    at = np.argmax(np.abs(x[first:]), axis=1)
+    steady = x[first:][at == at[0]]
+    assert len(steady) > 0.9 * len(at)        # (a latency jump moves the rest: see above)
+    assert audio.latency.jumps == np.count_nonzero(np.diff(at))
+    x = np.concatenate([x[:first], steady])
+    # the room adds noise of 1e-4; a resampler would smear the one-sample impulse into
+    # its neighbours (a band-limited interpolant: tenths of the peak)
+    assert np.all(np.abs(x[first:, at[0]] - 0.5) < 1e-3)
+    assert np.all(np.abs(x[first:, at[0] - 1]) < 5e-3)
+    assert np.all(np.abs(x[first:, at[0] + 1]) < 5e-3)
+    assert audio.latency.first == first * pri + at[0]
+    check_pipewire_stats({"audio": st}, 48000)
+    assert st["xruns_capture"] == st["xruns_playback"] == 0
+
+
+def test_a_rate_the_graph_would_resample_is_refused_with_the_fix(graph48, tmp_path):
+    cfg = daemon_config(tmp_path, backend="pipewire", sample_rate=44100,
+                        playback_device="bladesonar_sink", capture_device="bladesonar_source")
+    assert load_config(cfg).waveform.pri_samples == 1297
+    r = subprocess.run(bladesonar_cmd("reference", "--live", "--seconds", "3", "--direction",
+                                      "ccw", "--config",
+                                      str(cfg)), env=graph48.server.env, capture_output=True,
+                       text=True, timeout=60, cwd=ROOT)
+    assert r.returncode == 2
+    assert "audio.sample_rate 44100" in r.stderr and "48000" in r.stderr
+    assert "waveform.pri_samples: 1412" in r.stderr
+
+
+def test_daemon_at_48k_answers_like_the_alsa_loopback(graph48, alsa_baseline):
+    run = run_daemon(graph48.cfg, graph48.server.env, RUN_S)
+    check_answer(run)
+    delay = reversal_delay(run, graph48.last_session())
+    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa_baseline['delay']:.2f} s")
+    assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
+    st = run.last_stats()
+    check_no_loss(st)
+    assert st["audio_restarts"] == 0
+    check_pipewire_stats(st, 48000)
+
+
+def test_a_quantum_change_mid_run_changes_nothing_a_subscriber_sees(graph48, alsa_baseline):
+    """The graph's buffer size is forced from 1024 to 256 frames and back while the
+    daemon tracks: both streams stay on the graph's clock."""
+    srv = graph48.server
+    run = run_daemon(graph48.cfg, srv.env, RUN_S,
+                     actions=((6.0, lambda: srv.force_quantum(256)),
+                              (16.0, lambda: srv.force_quantum(0))))
+    check_answer(run)
+    delay = reversal_delay(run, graph48.last_session())
+    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa_baseline['delay']:.2f} s")
+    assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
+    st = run.last_stats()
+    check_no_loss(st)
+    assert st["audio_restarts"] == 0
+
+
+def test_the_server_restarted_under_the_daemon(graph48, alsa_baseline):
+    """pipewire and wireplumber are killed and started again 5 s into the run (as
+    systemd --user would after a crash). The daemon keeps running, reopens its streams
+    once the server is back, and tracks again; the room's new session restarts the
+    schedule, so the reversal comes 12 s after the room hears the daemon again."""
+    srv = graph48.server
+    before = len(sessions(graph48.truth))
+    run = run_daemon(graph48.cfg, srv.env, RUN_S + 10, actions=((5.0, srv.restart),))
+    assert run.rc == 0, run.stderr[-3000:]
+    after = sessions(graph48.truth)[before:]
+    assert len(after) == 2, after                  # before the restart, and after it
+    check_answer(run)
+    delay = reversal_delay(run, after[-1])
+    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa_baseline['delay']:.2f} s")
+    assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
+    st = run.last_stats()
+    assert st["audio_restarts"] >= 1
+    # the dying server failed every read and write at once (counted as xruns, 20 in a row
+    # end the path); pulses are dropped only where the latency jumped after the reopen
+    jumps = st["audio"]["sound_server"]["stream_latency_jumps"]
+    assert st["dropped_pulses"] <= PULSES_PER_JUMP * jumps, st
+
+
+def test_nodes_suspended_under_the_daemon(graph48, alsa_baseline):
+    """The sink and the source are suspended 5 s into the run (``pw-cli send-command ID
+    Suspend {}``, as a session manager does to idle nodes). Seen in these runs: the
+    nodes resume at once under the running streams, at the cost of a few latency jumps
+    (the same schedule session goes on). Seen once with the backend alone: no data
+    flowed after it; then the backend reopens its streams after 3 s without a pulse
+    and the room's next session restarts the schedule. Either way the daemon tracks on
+    and answers as the ALSA loopback does."""
+    srv = graph48.server
+
+    def suspend() -> None:
+        for name in ("bladesonar_sink", "bladesonar_source"):
+            r = srv.run("pw-cli", "send-command", str(srv.node_id(name)), "Suspend", "{}")
+            assert r.returncode == 0, r.stderr
+
+    before = len(sessions(graph48.truth))
+    run = run_daemon(graph48.cfg, srv.env, RUN_S + 12, actions=((5.0, suspend),))
+    after = sessions(graph48.truth)[before:]
+    print("sessions:", after)
+    assert len(after) in (1, 2), after
+    check_answer(run)
+    delay = reversal_delay(run, after[-1])
+    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa_baseline['delay']:.2f} s")
+    assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
+    st = run.last_stats()
+    if len(after) == 2:              # the graph stalled: the daemon reopened its streams
+        assert st["audio_restarts"] >= 1
+        assert "no direct-coupling pulse through PipeWire" in run.stderr
+    check_no_loss(st)
+
+
+@pytest.fixture(scope="module")
+def graph44(tmp_path_factory):
+    require_pipewire()
+    require_alsa()
+    g = Graph(tmp_path_factory.mktemp("pw44"), 44100)
+    yield g
+    g.close()
+
+
+def test_daemon_at_44k1_answers_like_the_alsa_loopback(graph44, alsa_baseline):
+    run = run_daemon(graph44.cfg, graph44.server.env, RUN_S)
+    check_answer(run)
+    delay = reversal_delay(run, graph44.last_session())
+    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa_baseline['delay']:.2f} s")
+    assert abs(delay - alsa_baseline["delay"]) < 0.3, (delay, alsa_baseline["delay"])
+    st = run.last_stats()
+    check_no_loss(st)
+    check_pipewire_stats(st, 44100)
