@@ -78,7 +78,7 @@ def test_a_resting_fan_among_strong_static_echoes_reads_as_noise(drift_ppm):
         events += [(e.kind, true_time(e.t_s, drift_ppm)) for e in fired]
         if est is None or an is None or an._since != 0:
             continue
-        states.append((t, est.direction.value))
+        states.append((t, est.direction.value, est.rotating))
         if t > REST_FROM + 2.0:      # the short window holds only the resting fan
             rest_stats.append(an.still.statistic()[0])
     an = live.analyzer
@@ -87,15 +87,21 @@ def test_a_resting_fan_among_strong_static_echoes_reads_as_noise(drift_ppm):
     rest = np.array(rest_stats)
     assert np.median(rest) <= np.median(null) + 0.02, (np.median(rest), np.median(null))
     assert np.percentile(rest, 95) <= np.percentile(null, 95) + 0.03
-    # the stop is called within 3 s of rest and holds. An event marks it only where a
-    # turning direction was known before: with the fan's echoes 30 dB down the wall
-    # echoes that tell its direction are weak, and under drift the direction can stay in
-    # doubt (unknown) all the while it turns (docs/dynamics.md, the mirror check)
-    called = [t for t, d in states if d == "stopped" and t > REST_FROM - 1.0]
-    assert called and REST_FROM <= called[0] <= REST_FROM + 3.0, (called[:3], events)
-    after = [d for t, d in states if t >= called[0]]
+    # the stop is called within 3 s of rest and holds, and an event marks it where the
+    # fan was known to turn. With the fan's echoes 30 dB down the wall echoes that tell
+    # its direction are weak, and under drift the direction can stay in doubt all the
+    # while it turns (docs/dynamics.md, the mirror check): the fan is then known to turn
+    # with its direction in doubt, and its stop waits, as a known direction's does, for
+    # a reversal through zero that would show; a doubt that lasts to the end of the
+    # spin-down (the direction never seen) is given until 4.5 s (measured 4.05 s at 40
+    # ppm; the worst case is 4 s: docs/dynamics.md, open)
+    known = any(d in ("same", "reversed") for t, d, _ in states if t < REST_FROM)
+    bound = REST_FROM + (3.0 if known else 4.5)
+    called = [t for t, d, _ in states if d == "stopped" and t > REST_FROM - 1.0]
+    assert called and REST_FROM <= called[0] <= bound, (called[:3], events)
+    after = [d for t, d, _ in states if t >= called[0]]
     assert all(d == "stopped" for d in after)
-    turned = any(d in ("same", "reversed") for t, d in states if t < REST_FROM)
+    turned = any(d in ("same", "reversed") or rot for t, d, rot in states if t < REST_FROM)
     stops = [t for k, t in events if k == "stopped"]
     assert len(stops) == (1 if turned else 0), events
-    assert all(REST_FROM <= t <= REST_FROM + 3.0 for t in stops), events
+    assert all(REST_FROM <= t <= bound for t in stops), events

@@ -261,9 +261,10 @@ def test_slow_fast_and_wobbling_fans_hold_their_answer(scene, reference, slow_re
     err = np.array([1.0 if r["rate_hz"] is None else abs(r["rate_hz"] - a) / a
                     for r, a in zip(rows[first:], true, strict=True)])
     assert np.percentile(err, 95) <= p95, np.percentile(err, 95)
-    # issue 31: a slow fan against a fast reference within 1 % at the median pulse
-    # (measured 0.03-0.11 % at 0.15-0.2 Hz against 0.5 Hz, paper room, 10 dB, 40 ppm)
-    assert np.median(err) <= 0.01, np.median(err)
+    if name.startswith("slow"):
+        # issue 31: a slow fan against a fast reference within 1 % at the median pulse
+        # (measured 0.03-0.11 % at 0.15-0.2 Hz against 0.5 Hz, paper room, 10 dB, 40 ppm)
+        assert np.median(err) <= 0.01, np.median(err)
     settled = [r["rate_state"] == "settled" for r, tr in zip(rows, t, strict=True) if tr > 5.0]
     assert np.mean(settled) >= 0.95, np.mean(settled)
 
