@@ -97,15 +97,7 @@ class Scene:
 
     def with_config(self, cfg) -> Scene:
         """The scene with its blade count settled against ``cfg.scene.blades``."""
-        k = cfg.scene.blades
-        if self.blades is None:
-            return dataclasses.replace(self, blades=int(k))
-        if int(self.blades) != int(k):
-            raise ConfigError("fan.blades", self.blades,
-                              f"disagrees with the config's scene.blades = {k}; set both to "
-                              "the real blade count (the analysis divides the blade-phase "
-                              "rate by it)", source=self.source)
-        return self
+        return settle_blades(self, cfg)
 
     def describe(self) -> dict[str, Any]:
         """Plain data for truth files."""
@@ -336,3 +328,18 @@ def _segments_cross(p1, p2, q1, q2) -> bool:
         lo2, hi2 = sorted((q1[ax], q2[ax]))
         return max(lo1, lo2) <= min(hi1, hi2)
     return d1 * d2 <= 0 and d3 * d4 <= 0
+
+
+def settle_blades(scene: Any, cfg: Any) -> Any:
+    """A scene (2-D or 3-D: a dataclass with ``blades`` and ``source``) with its blade
+    count settled against ``cfg.scene.blades``: taken from the config when the scene
+    leaves it open, refused when the two disagree."""
+    k = cfg.scene.blades
+    if scene.blades is None:
+        return dataclasses.replace(scene, blades=int(k))
+    if int(scene.blades) != int(k):
+        raise ConfigError("fan.blades", scene.blades,
+                          f"disagrees with the config's scene.blades = {k}; set both to "
+                          "the real blade count (the analysis divides the blade-phase "
+                          "rate by it)", source=scene.source)
+    return scene

@@ -22,7 +22,6 @@ Conventions (contracts for truth files and the airflow tests):
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -35,7 +34,7 @@ from ..errors import ConfigError
 from ..schema import opt
 from . import nuisances as _nuisances
 from . import schedule as _schedule
-from .scene import DEFAULT_BLADES
+from .scene import DEFAULT_BLADES, settle_blades
 
 SURFACES = ("wall_x0", "wall_x1", "wall_y0", "wall_y1", "floor", "ceiling")
 #: The sensor and the fan centre must sit at least this far inside every surface.
@@ -109,15 +108,8 @@ class Scene3D:
                 list(self.fan_centre)]
 
     def with_config(self, cfg: Any) -> Scene3D:
-        k = cfg.scene.blades
-        if self.blades is None:
-            return dataclasses.replace(self, blades=int(k))
-        if int(self.blades) != int(k):
-            raise ConfigError("fan.blades", self.blades,
-                              f"disagrees with the config's scene.blades = {k}; set both to "
-                              "the real blade count (the analysis divides the blade-phase "
-                              "rate by it)", source=self.source)
-        return self
+        """The scene with its blade count settled against ``cfg.scene.blades``."""
+        return settle_blades(self, cfg)
 
     def describe(self) -> dict[str, Any]:
         """Plain data for truth files."""
