@@ -59,7 +59,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import signal
     import sys
     from pathlib import Path
 
@@ -79,13 +78,7 @@ def run(args: argparse.Namespace) -> int:
     d.mkdir(parents=True, exist_ok=True)
     fifo_play, fifo_cap = d / "play.fifo", d / "cap.fifo"
     env = write_alsa_config(d / "asound.conf", fifo_play, fifo_cap)
-    stop = {"now": False}
-
-    def on_signal(*_: object) -> None:
-        stop["now"] = True
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    stop = _stop_on_signals()
     truth = open(args.truth, "w", encoding="utf-8") if args.truth else None
     sessions = 0
     try:
@@ -120,18 +113,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_pipewire(args: argparse.Namespace, cfg: object, scene: object) -> int:
-    import signal
     import sys
 
     from ..loopback.pw_room import PwRoom
 
-    stop = {"now": False}
-
-    def on_signal(*_: object) -> None:
-        stop["now"] = True
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    stop = _stop_on_signals()
     truth = open(args.truth, "w", encoding="utf-8") if args.truth else None
     room = PwRoom(scene, cfg, args.schedule or cfg.sim.schedule,  # type: ignore[attr-defined]
                   sink=args.sink, source=args.source, noise_sigma=args.noise, seed=args.seed,
@@ -150,3 +136,17 @@ def _run_pipewire(args: argparse.Namespace, cfg: object, scene: object) -> int:
     print(f"{room.sessions} sessions, {st.periods_played} blocks answered, "
           f"{room.reconnects} reconnects, ended: {st.ended_by}", file=sys.stderr, flush=True)
     return 0
+
+
+def _stop_on_signals() -> dict[str, bool]:
+    """A flag that SIGTERM and SIGINT set: the room's loops end at their next period."""
+    import signal
+
+    stop = {"now": False}
+
+    def on_signal(*_: object) -> None:
+        stop["now"] = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    return stop
