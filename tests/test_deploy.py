@@ -14,6 +14,7 @@ import re
 import shlex
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -233,11 +234,11 @@ def snapshot(paths: list[str]) -> dict[str, tuple[int, int, int] | None]:
     return out
 
 
-def run_install(*args: str, path: str, user: tuple[int, int] | None = None
-                ) -> subprocess.CompletedProcess:
+def run_install(*args: str, path: str, user: tuple[int, int] | None = None,
+                script: Path = INSTALL) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHON",)}
     env["PATH"] = path
-    cmd = ["bash", str(INSTALL), *args]
+    cmd = ["bash", str(script), *args]
     if user is not None:
         cmd = ["setpriv", f"--reuid={user[0]}", f"--regid={user[1]}", "--clear-groups",
                *cmd]
@@ -361,7 +362,19 @@ def test_bad_options_are_refused(argv, message, tripwire_path):
                     reason="needs root to run the script as another user")
 def test_a_real_run_as_a_normal_user_is_refused(tripwire_path):
     path, log = tripwire_path
-    r = run_install("--prefix", "/tmp/not-used", path=path, user=(65534, 65534))
+    # the unprivileged user must be able to read the script: a clone inside a folder
+    # only root may enter (mktemp -d makes 0700) gave "Permission denied" before the
+    # script could say anything, so it runs from a world-readable copy of the checkout
+    d = Path(tempfile.mkdtemp(prefix="bladesonar-deploy-"))
+    try:
+        d.chmod(0o755)
+        root = INSTALL.parent.parent
+        shutil.copytree(root, d / "checkout", ignore=shutil.ignore_patterns(
+            ".git", ".venv", "out", "__pycache__", "*.egg-info"))
+        r = run_install("--prefix", "/tmp/not-used", path=path, user=(65534, 65534),
+                        script=d / "checkout" / INSTALL.relative_to(root))
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
     assert r.returncode != 0
     assert "run as root" in r.stderr
     assert not log.exists()
