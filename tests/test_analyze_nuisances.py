@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from bladesonar import config
-from bladesonar.analysis import analyze, build_reference
 from bladesonar.dsp.gate import Gate
 from bladesonar.dsp.pulses import OK, align
 from bladesonar.io.scene_file import load_scene
+from bladesonar.offline import analyze
+from bladesonar.reference_build import build_reference
 from bladesonar.sim.nuisances import Nuisances
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import parse

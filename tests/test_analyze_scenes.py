@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from bladesonar import config
-from bladesonar.analysis import analyze, build_reference
 from bladesonar.errors import InputError
 from bladesonar.io.scene_file import load_scene
+from bladesonar.offline import analyze
+from bladesonar.reference_build import build_reference
 from bladesonar.sim.render import simulate
 
 pytestmark = pytest.mark.slow   # whole analyses of simulated scenes: outside the fast tier

@@ -38,9 +38,9 @@ def test_the_live_analysis_leaves_out_what_it_does_not_need(repo_root, tmp_path)
     import numpy as np
 
     from bladesonar import config
-    from bladesonar.analysis import build_reference
     from bladesonar.io.reference import save_reference
     from bladesonar.io.scene_file import load_scene
+    from bladesonar.reference_build import build_reference
     from bladesonar.sim.render import simulate
 
     cfg = config.Config()

@@ -13,9 +13,9 @@ import dataclasses
 import pytest
 
 from bladesonar import config
-from bladesonar.analysis import build_reference
 from bladesonar.dsp import aliasing
 from bladesonar.live import LiveAnalyzer
+from bladesonar.reference_build import build_reference
 from bladesonar.sim import random_scene
 from bladesonar.sim.render import Simulator, simulate
 from bladesonar.sim.schedule import parse

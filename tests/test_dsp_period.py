@@ -133,7 +133,7 @@ def test_a_reference_at_2_33_blade_period_per_pulse_is_not_folded_at_13_33():
     the search took 13/33 (3.35 Hz, a fold whose angles were in no order). Among folds in
     no order the order of the angles decides (random tuning scene 45)."""
     from bladesonar import config
-    from bladesonar.analysis import build_reference
+    from bladesonar.reference_build import build_reference
     from bladesonar.sim.nuisances import Nuisances
     from bladesonar.sim.render import simulate
     from bladesonar.sim.scene import Scene

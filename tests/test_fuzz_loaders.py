@@ -24,12 +24,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bladesonar import cli, config
-from bladesonar.analysis import build_reference, new_analyzer
+from bladesonar.analyzer import new_analyzer
 from bladesonar.errors import BladesonarError, ConfigError, InputError, ReferenceFileError
 from bladesonar.io.reference import checksum, parse_reference, reference_bytes
 from bladesonar.io.safe_yaml import parse_yaml
 from bladesonar.io.scene_file import load_scene
 from bladesonar.io.wav import read_wav
+from bladesonar.reference_build import build_reference
 from bladesonar.sim.render import simulate
 from bladesonar.sim.scene import Scene
 from bladesonar.sim.schedule import Schedule

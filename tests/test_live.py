@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from bladesonar import config
-from bladesonar.analysis import analyze, build_reference
 from bladesonar.io.config_file import load_config
 from bladesonar.io.wav import read_wav
 from bladesonar.live import LiveAnalyzer
+from bladesonar.offline import analyze
+from bladesonar.reference_build import build_reference
 from conftest import require_shared_sample
 
 pytestmark = pytest.mark.slow   # whole recordings, daemon path against offline

@@ -125,7 +125,7 @@ def test_missing_matplotlib_names_the_extra(repo_root, tmp_path, monkeypatch, ca
 
 
 def test_analysis_and_daemon_never_import_matplotlib(repo_root):
-    code = ("import sys, bladesonar.analysis, bladesonar.imaging, bladesonar.runtime_report, "
+    code = ("import sys, bladesonar.offline, bladesonar.imaging, bladesonar.runtime_report, "
             "bladesonar.cli, bladesonar.commands.plot, bladesonar.commands.report; "
             "bladesonar.cli.build_parser(); "
             "print(json.dumps(sorted(m for m in sys.modules if m.startswith('matplotlib'))))")

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from bladesonar import config
-from bladesonar.analysis import build_reference
 from bladesonar.errors import ReferenceFileError, ReferenceMissingError
 from bladesonar.io.reference import (
     FILE_FORMAT,
@@ -21,6 +20,7 @@ from bladesonar.io.reference import (
     save_reference,
 )
 from bladesonar.io.scene_file import load_scene
+from bladesonar.reference_build import build_reference
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import Schedule
 from loopback import SCENE

@@ -19,14 +19,15 @@ import numpy as np
 import pytest
 
 from bladesonar import config
-from bladesonar.analysis import STILL_BAND, build_reference
 from bladesonar.dsp.decide import MotionMeter
 from bladesonar.dsp.fingerprint import envelope_features
 from bladesonar.live import LiveAnalyzer
+from bladesonar.reference_build import build_reference
 from bladesonar.sim import random_scene
 from bladesonar.sim.render import Simulator, simulate
 from bladesonar.sim.schedule import parse
 from bladesonar.sim.score import true_time
+from bladesonar.tuning import STILL_BAND
 from live_feed import pulses
 
 pytestmark = pytest.mark.slow

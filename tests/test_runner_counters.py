@@ -13,10 +13,10 @@ import time
 
 import pytest
 
-from bladesonar.analysis import build_reference
 from bladesonar.io.config_file import load_config
 from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer
+from bladesonar.reference_build import build_reference
 from bladesonar.service.backends import open_audio
 from bladesonar.service.messages import state_payload
 from bladesonar.service.notify import NullNotifier

@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from bladesonar import config
-from bladesonar.analysis import analyze, build_reference
 from bladesonar.dsp.decide import Decision
 from bladesonar.io.scene_file import load_scene
+from bladesonar.offline import analyze
+from bladesonar.reference_build import build_reference
 from bladesonar.sim.nuisances import Nuisances
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import parse
@@ -127,7 +128,7 @@ def test_a_stop_is_called_at_high_snr(scene, reference, snr_db):
     fan at rest stayed unknown for good: at 30 dB through the aligner's residual error
     (once), at 40 dB through the coupling's edge timed off by a function of its
     sub-sample position (dsp/pulses.EDGE_BAND), at 50-60 dB through the short meter's
-    static estimate approaching the resting fan (analysis.SLOW_FACTOR)."""
+    static estimate approaching the resting fan (tuning.SLOW_FACTOR)."""
     score, _, _ = _run(scene, reference, "ccw:0.45:10,stop:0:14~6", 24, seed=4,
                        snr_db=snr_db)
     assert [e.kind for e, _ in score.hits] == ["stopped"], score.summary()
@@ -896,7 +897,8 @@ def test_a_speed_published_briefly_bounds_new_lines_at_a_multiple_of_itself(refe
     simulated day, 'reversed' at 0.21 Hz for 0.4 s, with the last trusted speed 0.09 Hz
     3 s before: 0.09 + 0.9 + 0.1 = 1.09 Hz let a re-check take a line at 0.92 Hz; now
     2.5 x 0.21 + 0.12 + 0.1 = 0.745 Hz."""
-    from bladesonar.analysis import ANCHOR_TRUST_S, UNTRUSTED_FACTOR, new_analyzer
+    from bladesonar.analyzer import new_analyzer
+    from bladesonar.tuning import ANCHOR_TRUST_S, UNTRUSTED_FACTOR
     cfg = config.Config()
     an = new_analyzer(cfg, reference)
     hz = float(reference.meta["rate_hz"]) / reference.cycles_per_pulse

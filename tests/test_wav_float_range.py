@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from bladesonar import config
-from bladesonar.analysis import build_reference
 from bladesonar.io.reference import save_reference
 from bladesonar.io.scene_file import load_scene
 from bladesonar.io.wav import MAX_FLOAT_SAMPLE, read_wav
+from bladesonar.reference_build import build_reference
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import Schedule
 from loopback import ROOT, SCENE, bladesonar_cmd

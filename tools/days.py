@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 
 from bladesonar import config
-from bladesonar.analysis import Reference, build_reference, folds_multipath, unfolding_pri
 from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer, capture_pulses
+from bladesonar.reference_build import Reference, build_reference, folds_multipath, unfolding_pri
 from bladesonar.runtime_report import TRANSITION_TARGETS_S
 from bladesonar.sim import random_scene
 from bladesonar.sim.render import Simulator, simulate

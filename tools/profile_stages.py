@@ -9,12 +9,12 @@ import sys
 #: (stage, functions whose cumulative time it is): the analysis stages in pipeline order
 STAGES = (
     ("align", ("pulses.py", "push"), ("pulses.py", "flush")),
-    ("clutter", ("analysis.py", "__call__"),),
+    ("clutter", ("analyzer.py", "__call__"),),
     ("features", ("fingerprint.py", "envelope_features"),),
     ("match", ("fingerprint.py", "match"), ("aliasing.py", "distances")),
     ("track", ("tracking.py", "update"),),
-    ("alias_check", ("analysis.py", "_check_aliases"), ("analysis.py", "_recheck_track")),
-    ("decide", ("analysis.py", "decision"),),
+    ("alias_check", ("analyzer.py", "_check_aliases"), ("analyzer.py", "_recheck_track")),
+    ("decide", ("analyzer.py", "decision"),),
     ("transitions", ("transitions.py", "step"),),
 )
 

@@ -83,7 +83,7 @@ class SceneSettings:
 
 @dataclass(frozen=True)
 class AnalysisSettings:
-    """Reference building and matching (owned by the pipeline: dsp/, analysis.py)."""
+    """Reference building and matching (owned by the pipeline: dsp/ and the analysis modules)."""
 
     phase_bins: int = opt(0, "angular bins of the reference table; 0: two per reference "
                           "pulse per blade period (folding many periods fills the angles "

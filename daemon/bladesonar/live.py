@@ -1,6 +1,6 @@
 """The daemon's per-pulse pipeline: capture periods in, the current estimate out (pure).
 
-The same stages as ``analysis.analyze`` (aligner -> static removal -> match -> track ->
+The same stages as ``offline.analyze`` (aligner -> static removal -> match -> track ->
 decide), fed one capture period at a time. What the offline path gets from a whole file
 it gets here from a warm-up: the running static estimate is primed from the first
 ``analysis.static_window_s`` of valid pulses before any answer is given.
@@ -15,10 +15,11 @@ from typing import Any
 
 import numpy as np
 
-from .analysis import PulseAnalyzer, Reference, WarmStart, device_figures, new_aligner
+from .analyzer import PulseAnalyzer, WarmStart, device_figures, new_aligner
 from .config import Config
 from .dsp.decide import Decision
 from .dsp.pulses import DROPOUT, OK, AlignedPulses
+from .reference_build import Reference
 from .transitions import Direction, Event
 
 #: Samples beyond the gate that the fractional-shift interpolator reads.

@@ -1,7 +1,8 @@
 """Error against run time: how right the answer is for how long the device listens.
 
 Measured on simulated scenes with known truth, through the real pipeline
-(``analysis.build_reference`` / ``analysis.analyze``); nothing here re-implements a stage.
+(``reference_build.build_reference`` / ``offline.analyze``); nothing here re-implements a
+stage.
 Pure computation (no files, no printing): the ``report`` command runs the jobs in worker
 processes and writes the results.
 
@@ -48,8 +49,9 @@ from typing import Any
 import numpy as np
 
 from . import config as _config
-from .analysis import Reference, analyze, build_reference
 from .errors import BladesonarError
+from .offline import analyze
+from .reference_build import Reference, build_reference
 from .sim.nuisances import PRESETS, Nuisances
 from .sim.render import Simulator
 from .sim.schedule import parse as parse_schedule
@@ -620,7 +622,7 @@ def refusal_notes(records: list[dict[str, Any]], min_pulses: int = 16) -> list[s
     if not odd:
         return []
     parts = ", ".join(f"{w:g} s: {100 * n / total[w]:.0f} %" for w, n in sorted(odd.items()))
-    return [f"analysis.analyze refused trials that held enough pulses ({parts} of the trials; "
+    return [f"offline.analyze refused trials that held enough pulses ({parts} of the trials; "
             "'only N usable pulses (of N+1); at least 16 are needed'): a recording with fewer "
             "valid pulses than analysis.static_window_s (3 s) whose final flush emits no "
             "pulse never creates the analyzer. Those trials count as unknown here; the "

@@ -1,7 +1,7 @@
 """``bladesonar analyze``: direction and rate of a recording against a reference, and the
 airflow from the echoes alone (with or without a reference).
 
-A thin edge: read config, reference and WAV, run analysis.analyze and the airflow stage
+A thin edge: read config, reference and WAV, run offline.analyze and the airflow stage
 (airflow_recording.py) on the first ``AIRFLOW_SAMPLES`` samples, print one JSON object
 (or, with --track, one JSON line per pulse followed by nothing else).
 """
@@ -95,9 +95,9 @@ def run(args: argparse.Namespace) -> int:
 def _with_reference(args: argparse.Namespace, cfg: Any) -> int:
     import numpy as np
 
-    from ..analysis import analyze
     from ..io.reference import load_reference
     from ..io.wav import stream_wav
+    from ..offline import analyze
 
     ref = load_reference(args.reference)
     head: list[Any] = []

@@ -185,8 +185,8 @@ def _cfg(args):
 def _ref_gate(args: argparse.Namespace, cfg: Config) -> Gate | None:
     if not getattr(args, "reference", None):
         return None
-    from ..analysis import check_compatible
     from ..io.reference import load_reference
+    from ..reference_build import check_compatible
 
     ref = load_reference(args.reference)
     check_compatible(ref, cfg)

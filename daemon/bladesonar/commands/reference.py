@@ -1,6 +1,6 @@
 """``bladesonar reference``: fold a recording of the turning fan into a reference file.
 
-A thin edge: read the config and the WAV, build the reference (analysis.build_reference),
+A thin edge: read the config and the WAV, build the reference (reference_build.build_reference),
 write it atomically, print a JSON summary.
 """
 
@@ -48,11 +48,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..analysis import build_reference
     from ..errors import InputError
     from ..io.config_file import load_config
     from ..io.reference import save_reference
     from ..io.wav import read_wav
+    from ..reference_build import build_reference
 
     cfg = load_config(args.config)
     if args.live:

@@ -6,8 +6,8 @@ import argparse
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from ..analysis import Reference
     from ..config import Config
+    from ..reference_build import Reference
 
 EPILOG = """\
 The daemon plays the pulse train and records through ALSA (audio.backend: alsa) or runs
@@ -48,8 +48,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def load_reference_for(cfg: Config) -> Reference:
     """The daemon's reference, validated, checked against the running config, with the
     id of the bytes it was read from."""
-    from ..analysis import check_compatible
     from ..io.reference import read_reference
+    from ..reference_build import check_compatible
 
     ref, digest = read_reference(cfg.reference_path)
     check_compatible(ref, cfg)

@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from ..analysis import REFERENCE_VERSION, Reference
 from ..errors import ReferenceFileError, ReferenceMissingError
+from ..reference_build import REFERENCE_VERSION, Reference
 from ..text import human_bytes, one_line, short_repr
 from .files import NotAFile, TooLarge, atomic_writer, read_capped
 
@@ -251,9 +251,9 @@ def _num(meta: dict[str, Any], key: str, *, lo: float = -math.inf, hi: float = m
 def _check_meta(meta: Any) -> None:
     """Types and ranges of every metadata value the analysis reads."""
     from .. import config as config_mod
-    from ..analysis import depends_on
     from ..dsp.gate import max_gate_stop
     from ..errors import ConfigError
+    from ..reference_build import depends_on
 
     if not isinstance(meta, dict):
         raise _Bad(f"metadata is {type(meta).__name__}, not a JSON object")
@@ -390,5 +390,5 @@ def read_reference(path: str | Path) -> tuple[Reference, str]:
 
 def load_reference(path: str | Path) -> Reference:
     """Read and validate a reference file (not against the config: see
-    ``analysis.check_compatible``)."""
+    ``reference_build.check_compatible``)."""
     return read_reference(path)[0]

@@ -129,8 +129,8 @@ def learn(x: np.ndarray, cfg: Config, direction: str, path: Path) -> dict[str, A
     keep the old file as ``.previous`` and write the new one atomically; the reference's
     summary and its id out. Raises EstimationError when the recording shows no steady
     rotation or too little of it (``reference.min_quality``)."""
-    from ..analysis import build_reference, check_compatible
     from ..io.reference import keep_previous, write_reference
+    from ..reference_build import build_reference, check_compatible
 
     ref = build_reference(x, cfg, direction)
     check_compatible(ref, cfg)

@@ -32,7 +32,7 @@ from .notify import Notifier, NullNotifier
 from .publish import Publisher
 
 if TYPE_CHECKING:
-    from ..analysis import Reference
+    from ..reference_build import Reference
 
 log = logging.getLogger(__name__)
 

@@ -1,24 +1,21 @@
-"""Angular fingerprinting, orchestrated: reference building and analysis (pure, no I/O).
+"""The streaming analyzer (pure, no I/O): aligned pulses in, matches, a track, motion
+evidence and decisions out, pulse by pulse as the daemon runs it and block by block as
+``analyze`` (offline.py) runs it.
 
-build_reference:  align -> gate (given, or from the target's doppler energy) -> period
-                  (blade-pass rate, refined) -> fold all periods into an angular table.
-analyze:          align -> remove the running static part -> envelope features -> match
-                  -> Kalman track (checked against its aliases when the rate is near p/q
-                  blade period per pulse) -> motion evidence -> decision.
+align -> remove the running static part -> envelope features -> match -> Kalman track
+(checked against its aliases when the rate is near p/q blade period per pulse) -> motion
+evidence -> decision -> state machine (transitions.py).
 
 Per pulse, analysis costs an alignment of the gated window, one envelope (FFT of the gate),
 one row of a matrix product against the table, a 2x2 Kalman step and ``max_lag`` vector
-differences; the range-doppler map and the period search run only at reference time. The
-daemon runs the same stages pulse by pulse through :class:`PulseAnalyzer`.
+differences. The tuning constants are in tuning.py, the reference in reference_build.py.
 """
 
 from __future__ import annotations
 
 import copy
-import itertools
 import math
 from collections import deque
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -28,490 +25,32 @@ from .config import Config
 from .dsp import aliasing, rangescale
 from .dsp import device as dev
 from .dsp import fingerprint as fp
-from .dsp.decide import DecideSettings, Decision, MotionMeter, decide, noise_threshold
-from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
-from .dsp.period import estimate_period
-from .dsp.pulses import (
-    BURST,
-    DROPOUT,
-    OK,
-    WARMUP,
-    AlignedPulses,
-    PulseAligner,
-    RecordingCheck,
-    check_recording,
-    count_dropped,
-    too_few_pulses,
-)
-from .dsp.rangedoppler import band_limited, range_doppler, without_shift_and_gain
+from .dsp.decide import Decision, MotionMeter, decide, noise_threshold
+from .dsp.pulses import DROPOUT, OK, WARMUP, AlignedPulses, PulseAligner
 from .dsp.stats import median
-from .dsp.tracking import Tracker, TrackerSettings, TrackState
-from .errors import InputError, ReferenceFileError
-from .transitions import Event, Transitions, TransitionSettings
-
-#: Length of the short motion window that calls a fan at rest, seconds.
-STILL_WINDOW_S = 1.5
-#: The short meter's static estimate is this many times slower than the matches' (3 s):
-#: hours. Only change between pulses counts, not a stale estimate, but the estimate's own
-#: approach to a fan that has just come to rest is a change: over the meter's 1.5 s it is
-#: nearly a straight line, 0.5 % of the difference at 100 (300 s), which at 50 dB SNR
-#: stood over the noise and kept every rest of a simulated day from being called stopped
-#: (bench_day --snr-db 50). At 10000 it is 40 dB lower.
-SLOW_FACTOR = 10000.0
-STILL_BAND = 0.2
-#: Added to the short meter's noise-alone threshold (decide.noise_threshold, its 98th
-#: percentile): room for what the device adds to white noise.
-NOISE_MARGIN = 0.03
-#: Share of the band (up to Nyquist) in which a reference's target range is looked for
-#: (the moving energy of the range-doppler map; dsp.pulses.EDGE_BAND's reason).
-TARGET_BAND = 0.7
-
-#: Version of the reference contents; bump when the table's meaning changes.
-REFERENCE_VERSION = 1
-
-
-@dataclass
-class Reference:
-    """A stored reference rotation: the angular table and what it depends on.
-
-    Attributes
-    ----------
-    table : ndarray, shape (B, L)
-        Feature vectors by blade phase (bin b at phase b/B).
-    mean_pulse : ndarray, shape (L,)
-        The reference's static part (mean gated pulse).
-    meta : dict
-        JSON-able: ``depends`` (config values that must match at analysis), blade and
-        rotation rate, direction, periods folded, quality, gate, ...
-    """
-
-    table: np.ndarray
-    mean_pulse: np.ndarray
-    meta: dict[str, Any]
-
-    @property
-    def cycles_per_pulse(self) -> float:
-        return float(self.meta["cycles_per_pulse"])
-
-    @property
-    def gate(self) -> Gate:
-        d = self.meta["depends"]
-        return Gate(int(self.meta["gate_samples"][0]), int(self.meta["gate_samples"][1]),
-                    float(d["audio.sample_rate"]), float(d["scene.speed_of_sound"]))
-
-    def summary(self) -> dict[str, Any]:
-        """The JSON summary ``bladesonar reference`` prints."""
-        m = self.meta
-        keys = ("blade_rate_hz", "rate_hz", "rpm", "periods_folded", "quality", "gate_m",
-                "pulses", "dropped_pulses", "direction", "phase_bins", "cycles_per_pulse",
-                "target_range_m", "line_snr", "direction_contrast", "features", "device",
-                "warnings")
-        return {k: m[k] for k in keys if k in m}
-
-
-def depends_on(cfg: Config) -> dict[str, Any]:
-    """Config values a reference is only valid with (checked when it is loaded)."""
-    return {"audio.sample_rate": cfg.audio.sample_rate,
-            "waveform.pri_samples": cfg.waveform.pri_samples,
-            "waveform.pulse": cfg.waveform.pulse,
-            "waveform.pulse_samples": cfg.waveform.pulse_samples,
-            "scene.blades": cfg.scene.blades,
-            "scene.speed_of_sound": cfg.scene.speed_of_sound,
-            "analysis.features": cfg.analysis.features,
-            "analysis.envelope_smooth": cfg.analysis.envelope_smooth}
-
-
-def check_compatible(ref: Reference, cfg: Config) -> None:
-    """Raise ReferenceFileError naming the first config value that differs from the
-    reference's (and both values); an explicit gate must match the stored one."""
-    want = depends_on(cfg)
-    have = ref.meta.get("depends", {})
-    for key, value in want.items():
-        if key not in have:
-            raise ReferenceFileError(f"the reference does not record {key}; make it again "
-                                     "with 'bladesonar reference'")
-        if have[key] != value:
-            raise ReferenceFileError(
-                f"the reference was made with {key} = {have[key]!r} but the config says "
-                f"{value!r}; use the same config or record a new reference")
-    g = ref.gate
-    for key, val, stored in (("scene.gate_start_m", cfg.scene.gate_start_m, g.start),
-                             ("scene.gate_stop_m", cfg.scene.gate_stop_m, g.stop)):
-        if val is None:
-            continue
-        try:
-            mine = make_gate(cfg.scene.gate_start_m or 0.0, cfg.scene.gate_stop_m,
-                             c=cfg.scene.speed_of_sound, fs=cfg.audio.sample_rate,
-                             pri=cfg.waveform.pri_samples)
-        except ValueError as exc:
-            raise InputError(str(exc)) from exc
-        now = mine.start if key.endswith("start_m") else mine.stop
-        if now != stored:
-            raise ReferenceFileError(
-                f"the reference was made with {key} = "
-                f"{ref.meta['gate_m'][0 if key.endswith('start_m') else 1]:g} m but the config "
-                f"says {val:g} m; use the same gate or record a new reference")
-
-
-def _gate_for_reference(cfg: Config, full: AlignedPulses, prf: float) -> tuple[Gate, float | None]:
-    s, fs, c, pri = cfg.scene, cfg.audio.sample_rate, cfg.scene.speed_of_sound, \
-        cfg.waveform.pri_samples
-    target = s.target_range_m
-    start_m = s.gate_start_m
-    if start_m is None:
-        if target is None:
-            v = full.valid
-            # below TARGET_BAND of Nyquist: the top of the band holds the aligner's
-            # interpolation error, which under clock drift turns with the sub-sample
-            # position and made a strong static echo 0.35 m away look like the moving
-            # target (a random scene at -17 ppm: target 0.315 m, the fan at 2.3 m); and
-            # without each pulse's shift and gain against the mean: a clipped coupling
-            # timed 0.08 sample rms off did the same to a wall 0.47 m away (target
-            # 0.45 m, the fan at 3.4 m)
-            p = without_shift_and_gain(band_limited(full.pulses[v], TARGET_BAND))
-            _, power = range_doppler(p, prf)
-            target = find_target_range(power, fs, c)
-        start_m = max(target - cfg.analysis.gate_margin_m, 0.0)
-    try:
-        return make_gate(start_m, s.gate_stop_m, c=c, fs=fs, pri=pri), target
-    except ValueError as exc:
-        raise InputError(f"range gate: {exc}") from exc
-
-
-#: Least range the gate holds past the fan's direct echo, m: the wall bounces that tell
-#: the direction come 0.3-2 m later, and beyond one PRI they fold into the next pulse's
-#: window, ahead of the gate (a fan 4.6 m away, gate 0.64 m: false reversals every few
-#: seconds in three simulated trials).
-MIN_MULTIPATH_M = 1.2
-
-
-def folds_multipath(gate: Gate, target: float | None) -> bool:
-    """Whether the fan is so far that its wall bounces fold past one PRI."""
-    return target is not None and gate.stop_m - target < MIN_MULTIPATH_M
-
-
-def unfolding_pri(cfg: Config, target: float) -> int:
-    """The PRI (samples) that keeps echoes to 2 m past a fan at ``target`` m."""
-    c, fs = cfg.scene.speed_of_sound, cfg.audio.sample_rate
-    return int(math.ceil(2.0 * (target + 2.0) / c * fs))
-
-
-def _fold_warning(cfg: Config, gate: Gate, target: float | None) -> list[str]:
-    """A warning when the fan is so far that its multipath folds past one PRI."""
-    if target is None or not folds_multipath(gate, target):
-        return []
-    fs, K = cfg.audio.sample_rate, cfg.scene.blades
-    pri = unfolding_pri(cfg, target)
-    return [f"the fan's echo comes from {target:.2f} m and the range gate ends at "
-            f"{gate.stop_m:.2f} m (one PRI): the wall bounces that tell the direction fold "
-            f"into the next pulse, so directions may be unknown or wrong; set "
-            f"waveform.pri_samples to {pri} or more (echoes to {target + 2.0:.1f} m; the "
-            f"fastest fan followed becomes {fs / pri / (2 * K):.2f} Hz), or move the "
-            "device nearer the fan"]
-
-
-def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> Reference:
-    """Make a reference from a recording of the fan turning at a steady rate.
-
-    Parameters
-    ----------
-    x : ndarray, shape (n_samples,)
-        Mono recording, float64 in [-1, 1].
-    cfg : Config
-        Validated settings.
-    direction : {"cw", "ccw", "unknown"}
-        The reference's known rotation (seen from the sensor), for absolute answers.
-
-    Raises
-    ------
-    InputError, EstimationError
-    """
-    if direction not in ("cw", "ccw", "unknown"):
-        raise ValueError(f"direction must be cw, ccw or unknown, got {direction!r}")
-    a = cfg.analysis
-    fs, pri = cfg.audio.sample_rate, cfg.waveform.pri_samples
-    prf = cfg.prf_hz
-    warnings = check_recording(x, pri=pri, min_pulses=a.min_pulses,
-                               max_clip_fraction=a.max_clip_fraction, sample_rate=fs)
-    full_gate = Gate(0, max_gate_stop(pri), float(fs), cfg.scene.speed_of_sound)
-    aligner = PulseAligner(pri, full_gate)
-    full = AlignedPulses.concat([aligner.push(x), aligner.flush()], full_gate.length)
-    v = full.valid
-    if v.sum() < a.min_pulses:
-        raise too_few_pulses(int(v.sum()), len(full), len(x), pri=pri, sample_rate=fs,
-                             min_pulses=a.min_pulses,
-                             dropped=count_dropped(full.status, ended=True))
-    device, warm = _device_figures(full, aligner, prf, fs)
-    warnings.extend(device.pop("warnings"))
-    v = full.valid
-    if v.sum() < a.min_pulses:
-        raise too_few_pulses(int(v.sum()), len(full), len(x), pri=pri, sample_rate=fs,
-                             min_pulses=a.min_pulses,
-                             dropped=count_dropped(full.status, ended=True))
-    gate, target = _gate_for_reference(cfg, full, prf)
-    warnings.extend(_fold_warning(cfg, gate, target))
-    pulses = full.pulses[:, gate.start:gate.stop]
-    k = full.index[v]
-    xv = pulses[v]
-    mean_pulse = xv.mean(axis=0)
-    feats = fp.envelope_features(xv, mean_pulse, kind=a.features, smooth=a.envelope_smooth)
-    y = np.zeros_like(pulses)
-    y[v] = xv - mean_pulse
-    f_all = np.zeros_like(pulses)
-    f_all[v] = feats - feats.mean(axis=0)
-    est = estimate_period(y, full.index, features=f_all, min_periods=a.min_periods,
-                          max_cycles_per_pulse=a.max_phase_per_pulse,
-                          line_snr_min=a.line_snr_min)
-    r = est.cycles_per_pulse
-    span = int(k[-1] - k[0]) + 1 if len(k) else 0
-    folded = aliasing.folded_angles(r, span)
-    if folded is not None:
-        p, q = folded.numerator, folded.denominator
-        warnings.append(
-            f"the reference turns {r:.6f} blade periods per pulse, within "
-            f"{abs(r - p / q):.1e} of {p}/{q}: its {span} pulses show only {q} blade angles, "
-            f"so the table holds only those (interpolated between) and the rate itself may "
-            f"be an alias (another m/{q}; the record cannot tell the order of the angles); "
-            f"record the reference at another fan speed, a few percent faster or slower")
-    bins = fp.auto_bins(r, a.phase_bins)
-    phases = fp.fold_phases(k, r)
-    table, weight = fp.build_table(feats, phases, bins)
-    quality = fp.explained_fraction(feats, table, phases)
-    window = max(int(round(cfg.daemon.window_s * prf)), 20)
-    contrast = direction_contrast(feats, phases, bins, window)
-    if contrast is not None and contrast < aliasing.MIRROR_DOUBT_Z:
-        warnings.append(
-            f"from here the fan's echoes turned either way are nearly alike (direction "
-            f"contrast {contrast:.1f} < {aliasing.MIRROR_DOUBT_Z:g}): the wall echoes that "
-            f"tell the directions apart are weak, so the direction will often be unknown "
-            f"and each new one waits for its own evidence; a place nearer a wall, further "
-            f"off the fan's axis, makes them stronger")
-    blade_hz = r * prf
-    rate_hz = blade_hz / cfg.scene.blades
-    dropped = count_dropped(full.status, ended=True)
-    if dropped:
-        warnings.append(f"{dropped} pulses dropped or corrupt (not used)")
-    meta = {
-        "format": "bladesonar-reference", "version": REFERENCE_VERSION,
-        "depends": depends_on(cfg),
-        "gate_samples": [gate.start, gate.stop],
-        "gate_m": [round(gate.start_m, 4), round(gate.stop_m, 4)],
-        "range_convention": "one-way range = c * delay / 2 from the direct-coupling edge",
-        "cycles_per_pulse": r, "blade_rate_hz": round(blade_hz, 7),
-        "rate_hz": round(rate_hz, 7), "rpm": round(rate_hz * 60.0, 5), "prf_hz": prf,
-        "periods_folded": round(float(est.periods), 3), "phase_bins": bins,
-        "quality": round(quality, 4), "line_snr": round(est.line_snr, 2),
-        "explained_lines": round(est.explained, 4),
-        "direction": direction, "pulses": int(len(full)), "used_pulses": int(v.sum()),
-        "dropped_pulses": dropped,
-        "target_range_m": None if target is None else round(float(target), 4),
-        "features": a.features, "min_bin_weight": round(float(weight.min()), 3),
-        "device": device, "warmup_pulses": warm,
-        "warnings": warnings,
-    }
-    if contrast is not None:
-        meta["direction_contrast"] = round(contrast, 2)
-    return Reference(table=table, mean_pulse=mean_pulse, meta=meta)
-
-
-def direction_contrast(feats: np.ndarray, phases: np.ndarray, bins: int, window: int
-                       ) -> float | None:
-    """How clearly the reference's own pulses tell their direction from its mirror: the
-    median, over windows of the analysis's length, of :func:`aliasing.mirror_evidence` of
-    each half's pulses against a table built from the other half (a table built from the
-    same pulses would favour their own path). None for too short a recording."""
-    n = len(feats)
-    half = n // 2
-    zs: list[float] = []
-    for test, train in ((slice(half, n), slice(0, half)), (slice(0, half), slice(half, n))):
-        table, _ = fp.build_table(feats[train], phases[train], bins)
-        fine = aliasing.fine_table(table)
-        f, p = feats[test], phases[test]
-        for s0 in range(0, len(f) - aliasing.MIRROR_MIN_PULSES + 1, window):
-            z, sweep, _ = aliasing.mirror_evidence(
-                aliasing.distances(f[s0:s0 + window], fine), p[s0:s0 + window], fine)
-            if sweep >= aliasing.MIRROR_MIN_SWEEP and math.isfinite(z):
-                zs.append(z)
-    if not zs:
-        return None
-    zs.sort()                 # the median by hand: np.median imports numpy.ma (the daemon)
-    m = len(zs) // 2
-    return zs[m] if len(zs) % 2 else 0.5 * (zs[m - 1] + zs[m])
-
-
-def _device_figures(full: AlignedPulses, aligner: PulseAligner, prf: float, fs: float
-                    ) -> tuple[dict[str, Any], int]:
-    """What the reference recording shows of the device and room (dsp/device.py), and the
-    pulses a pulse train's start needs before its windows hold the whole reverberation.
-
-    Marks in ``full.status`` the build-up pulses (WARMUP) and the bursts (BURST), so the
-    reference is made of the steady, quiet pulses only.
-    """
-    warnings: list[str] = []
-    v = full.valid
-    x = full.pulses
-    idx = np.nonzero(v)[0]
-    late = idx[len(idx) // 2:]
-    mean = x[late].mean(axis=0)
-    # noise of one pulse from lag-1 differences over the late half of the window, where
-    # the fan's echoes are weakest (an upper bound: the fan adds to it)
-    L = x.shape[1]
-    pair = late[1:][np.diff(late) == 1]
-    if len(pair):
-        d = x[pair, L // 2:] - x[pair - 1, L // 2:]
-        noise_var = 0.5 * float(np.mean(d * d))
-    else:
-        noise_var = float(np.var(x[late, L // 2:]))
-    zone = aligner.coupling_zone
-    # bursts: a robust level of each pulse's residual (the median of its squares; the
-    # fan's echoes are a few samples, a burst covers the window)
-    v = full.valid
-    res = x[v] - mean
-    level = median(res * res, axis=1)
-    burst = dev.burst_mask(level)
-    full.status[np.nonzero(v)[0][burst]] = BURST
-    v = full.valid
-    gains = dev.projection_gains(x[v, zone:], mean[zone:])
-    wander = dev.gain_wander_db(gains, prf)
-    # every pulse brought to the mean's gain (an AGC's wander would otherwise leave a share
-    # of the strong static echoes in every residual); the analysis does the same
-    # (StaticRemover.skip_bursts)
-    rows = np.nonzero(v)[0]
-    good = np.isfinite(gains) & (gains > 0)
-    if wander > dev.NORMALISE_ABOVE_DB:
-        x[rows[good]] /= gains[good][:, None]
-    # the room's tail: from the pulse train's start when the recording shows it (exact),
-    # else from the static part's decay along the window (rough)
-    ok = full.status == OK
-    if wander > dev.NORMALISE_ABOVE_DB:
-        mean = x[late[full.status[late] == OK]].mean(axis=0)
-    n_lead = min(len(x), 400)
-    lead = np.where(ok[:n_lead, None], x[:n_lead, zone:], np.nan)
-    rt60, building = dev.tail_from_buildup(lead, mean[zone:], aligner.pri, fs)
-    how = "build-up"
-    if rt60 <= 0:
-        rt60 = dev.tail_rt60(mean, noise_var / max(len(late), 1), fs, start=zone)
-        how = "decay"
-    warm = max(dev.buildup_pulses(rt60, prf) if how == "build-up" else 0, building)
-    first = int(full.index[0]) if len(full) else 0
-    full.status[(full.status == OK) & (full.index < first + warm)] = WARMUP
-    measured = max(aligner.edges_measured, 1)
-    clipped = aligner.coupling_clipped / measured
-    figures = {
-        "clipped_coupling": round(clipped, 4),
-        "coupling_zone_samples": zone,
-        "gain_wander_db": round(wander, 2) if math.isfinite(wander) else None,
-        "burst_pulses": int(burst.sum()),
-        "rt60_s": round(rt60, 3),
-        "tail_pris": round(rt60 * prf, 1),
-        "tail_from": how if rt60 > 0 else None,
-        "warnings": warnings,
-    }
-    if clipped > 0:
-        warnings.append(f"the direct coupling is clipped in {100 * clipped:.0f}% of the pulses "
-                        "(handled: those edges follow the transmit schedule); a lower "
-                        "playback volume or capture gain keeps more headroom")
-    if wander > 3.0:
-        warnings.append(f"the capture gain wanders by {wander:.1f} dB (an AGC?): turn the "
-                        "microphone's automatic gain control off where the driver allows it")
-    if burst.sum():
-        warnings.append(f"{int(burst.sum())} pulses skipped for bursts of interference "
-                        "(speech, clatter); record the reference in a quiet room")
-    return figures, warm
-
-
-# --------------------------------------------------------------------------------------
-# Analysis
-
-
-#: Pulses between checks of a poorly accepted track (PulseAnalyzer._recheck_track).
-RECHECK_EVERY = 8
-
-#: Largest difference between the mean rates of a window's two halves, as a share of the
-#: window's mean rate, for the window to read as steady (a wobble) rather than a ramp.
-TREND_SHARE = 0.02
-
-#: Largest difference between a settled fan's steady rate (the window's mean, or the
-#: track's) and the latest rate (the follower's), as a share, for the steady one to be
-#: reported: the follower's own wander on a steady fan is about 1.4 % at the 95th
-#: percentile, the change in the first half second of a 0.1 Hz/s ramp from 0.3 Hz 15 %.
-SETTLED_AGREE = 0.03
-
-#: Pulses between the copies of the static estimate kept for a fan that comes to rest,
-#: and how many are kept (12 s: a spin-down's last seconds above three times the floor
-#: lie up to about 8 s before its stop is confirmed) (PulseAnalyzer._hold_static).
-SNAPSHOT_EVERY = 17
-SNAPSHOTS = 24
-#: Longest hold of the static estimate while the fan rests, s (_hold_static).
-HOLD_S = 600.0
-#: How long a turning state must have been published before its speed bounds new lines,
-#: s (_bound_rate).
-ANCHOR_TRUST_S = 2.0
-#: How many times its speed a turning state published for less than ANCHOR_TRUST_S may
-#: be off (_bound_rate): the wrong first answer above was 1.8 times too slow.
-UNTRUSTED_FACTOR = 2.5
-
-#: Largest range scale (c now / c at the reference) followed by rescaling: beyond it
-#: (about 17 degrees C) the reference no longer fits and the answer is unknown.
-SCALE_LIMIT = 0.03
-#: Least envelope correlation between the reference's static room and now's for the
-#: range scale to be trusted (below it the room itself has changed).
-SCALE_MIN_CORR = 0.5
-#: Pulses between re-estimates of the range scale (the room warms up over hours).
-SCALE_EVERY = 1024
-
-#: Acceleration noise of the rate follower: the standard deviation of its change per half
-#: second, as a share of the steepest ramp (tracking.max_ramp_hz_s). A quarter first: on
-#: simulated ramps of 0.03-0.1 Hz/s at 10 dB the 95th percentile rate error fell from
-#: 13 % to 9-11 % (the follower's own rate was less noisy, so the matches favoured it
-#: sooner); a lock taken on a ramp still starts with the steepest ramp as uncertainty.
-#: 0.4 once matches with no blade in view lost their quality (fingerprint.FLAT_SHARE):
-#: the ramp error's 95th percentile in four simulated hours went from 8.7 / 9.1 / 10.4 /
-#: 8.1 % to 8.0 / 9.3 / 9.7 / 7.8 % (0.35: 8.3 / 9.2 / 10.0 / 7.8 %; 0.5: a reversal read
-#: as a stop and a start, and a 3.2 s stop, in seed 3), every event the same; steady
-#: rates a little noisier (all states' 95th percentile 2.4-3.6 %, from 2.2-3.2 %).
-#: Before that change 0.35 had cost a 0.94 s 'unknown' mid-turn.
-ACCEL_NOISE = 0.4
-#: Longest a track coasts through weak matches (s; dsp.tracking.Tracker._coasts): a slow
-#: fan's blind half-period, 1.1 s at 0.15 Hz in the paper room, with room to spare.
-COAST_MAX_S = 2.0
-#: The slowest track that coasts, in multiples of tracking.rate_floor_hz
-#: (dsp.tracking.Tracker._coasts). One floor: at two (the rate a new direction needs) a
-#: start's first slow tracks could not coast, and a simulated hour got a false start.
-COAST_MIN_FLOORS = 1.0
-
-
-def tracker_settings(cfg: Config, ref: Reference) -> TrackerSettings:
-    """Tracker tuning from the config, with the slew bound from the reference's rate."""
-    t = cfg.tracking
-    max_rate = min(t.slew_limit * ref.cycles_per_pulse, 0.45)
-    prf = cfg.prf_hz
-    # the steepest ramp, in blade cycles per pulse per pulse; the acceleration's random
-    # walk lets a ramp start within about half a second
-    max_accel = t.max_ramp_hz_s * cfg.scene.blades / (prf * prf)
-    onset = max(0.5 * prf, 1.0)
-    return TrackerSettings(max_rate=max_rate, q_rate=t.rate_noise ** 2,
-                           meas_sigma=t.meas_sigma, gate_sigma=t.gate_sigma,
-                           reacquire_after=t.reacquire_after, init_pulses=t.init_pulses,
-                           min_coherence=t.min_coherence,
-                           q_accel=(max_accel * ACCEL_NOISE) ** 2 / onset,
-                           max_accel=max_accel, coast_max=int(round(COAST_MAX_S * prf)),
-                           coast_min_rate=COAST_MIN_FLOORS * t.rate_floor_hz
-                           * cfg.scene.blades / prf)
-
-
-def decide_settings(cfg: Config) -> DecideSettings:
-    t = cfg.tracking
-    return DecideSettings(motion_threshold=t.motion_threshold, min_confidence=t.min_confidence,
-                          slew_limit=t.slew_limit, alias_margin=aliasing.MARGIN,
-                          rate_floor_hz=t.rate_floor_hz)
-
-
-def transition_settings(cfg: Config) -> TransitionSettings:
-    t = cfg.tracking
-    return TransitionSettings(rate_floor_hz=t.rate_floor_hz, confirm_s=t.confirm_s,
-                              max_reversal_hz_s=t.max_reversal_hz_s,
-                              blind_turn_rev=0.5 / cfg.scene.blades)
+from .dsp.tracking import Tracker, TrackState
+from .reference_build import Reference, check_compatible
+from .transitions import Event, Transitions
+from .tuning import (
+    ANCHOR_TRUST_S,
+    HOLD_S,
+    NOISE_MARGIN,
+    RECHECK_EVERY,
+    SCALE_EVERY,
+    SCALE_LIMIT,
+    SCALE_MIN_CORR,
+    SETTLED_AGREE,
+    SLOW_FACTOR,
+    SNAPSHOT_EVERY,
+    SNAPSHOTS,
+    STILL_BAND,
+    STILL_WINDOW_S,
+    TREND_SHARE,
+    UNTRUSTED_FACTOR,
+    decide_settings,
+    tracker_settings,
+    transition_settings,
+)
 
 
 def new_aligner(cfg: Config, ref: Reference) -> PulseAligner:
@@ -520,6 +59,7 @@ def new_aligner(cfg: Config, ref: Reference) -> PulseAligner:
     marked as warm-up."""
     warm = int(ref.meta.get("warmup_pulses", 0) or 0)
     return PulseAligner(cfg.waveform.pri_samples, ref.gate, warmup=max(1, warm + 1))
+
 
 
 class StaticRemover:
@@ -1280,113 +820,3 @@ def device_figures(aligner: PulseAligner, an: PulseAnalyzer | None) -> dict[str,
         "range_scale": round(an.scale, 5) if an is not None else None,
     }
 
-
-def _blocks(x: np.ndarray, size: int) -> Iterator[np.ndarray]:
-    for i in range(0, len(x), size):
-        yield x[i:i + size]
-
-
-def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
-            track: bool = False) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """Direction and rate of a recording against a reference.
-
-    Parameters
-    ----------
-    x : ndarray, shape (n_samples,), or an iterable of such blocks
-        Mono recording, float64; given as blocks (a WAV read in blocks) the memory used is
-        independent of the recording's length (``track`` rows aside).
-    cfg : Config
-    ref : Reference
-    track : bool
-        Also return one row per pulse with the running estimate.
-
-    Returns
-    -------
-    summary : dict
-        direction, rotation, relative_rate, rate_hz, rpm, confidence, pulses, ...
-    rows : list of dict
-        Per-pulse rows (empty unless ``track``).
-    """
-    check_compatible(ref, cfg)
-    a = cfg.analysis
-    pri = cfg.waveform.pri_samples
-    block = 256 * pri
-    chk = RecordingCheck(pri=pri, min_pulses=a.min_pulses,
-                         max_clip_fraction=a.max_clip_fraction,
-                         sample_rate=cfg.audio.sample_rate)
-    streamed = not isinstance(x, np.ndarray)
-    warnings: list[str] = []
-    if isinstance(x, np.ndarray):   # not streamed
-        # a whole recording is judged before any work (block by block: no full-length
-        # temporaries); a stream as it goes
-        for b in _blocks(x, block):
-            chk.update(b)
-        warnings = chk.finish()
-    # stream the recording through the same stages the daemon runs, in blocks of pulses
-    # (bounded memory); the static estimate is primed from the first window of pulses
-    aligner = new_aligner(cfg, ref)
-    stream = WarmStart(cfg, ref, rows=track, uncertain_gaps=True)
-    rows: list[dict[str, Any]] = []
-    n_pulses = n_valid = 0
-    edges: list[np.ndarray] = []
-    status: list[np.ndarray] = []
-    source = _blocks(x, block) if isinstance(x, np.ndarray) else iter(x)
-    for xb in itertools.chain(source, [None]):
-        if xb is not None:
-            xb = np.asarray(xb, dtype=np.float64)
-            if streamed:
-                chk.update(xb)
-        try:
-            got = aligner.flush() if xb is None else aligner.push(xb)
-        except InputError:
-            if streamed:
-                chk.explain()              # a silent or overloaded recording's own message
-            raise
-        if not len(got):
-            continue
-        n_pulses += len(got)
-        n_valid += int(got.valid.sum())
-        edges.append(got.edges[got.valid])
-        status.append(got.status)
-        rows.extend(stream.push(got))
-    if streamed:
-        warnings = chk.finish()
-    # a recording shorter than the static window: prime from all it holds
-    rows.extend(stream.finish(a.min_pulses))
-    an = stream.analyzer
-    # the end of the pulse train is not a drop-out (the pulses there are not used either)
-    dropped = count_dropped(np.concatenate(status) if status else np.zeros(0), ended=True)
-    if an is None or n_valid < a.min_pulses:
-        raise too_few_pulses(n_valid, n_pulses, chk.n, pri=pri,
-                             sample_rate=cfg.audio.sample_rate, min_pulses=a.min_pulses,
-                             dropped=dropped)
-    # the last decision made (as the daemon's last estimate: at most decide_every - 1
-    # pulses before the end)
-    d = an.decided if an.decided is not None else an.decision()
-    if dropped:
-        warnings.append(f"{dropped} pulses dropped or corrupt (skipped)")
-    if an.bursts.bursts:
-        warnings.append(f"{an.bursts.bursts} pulses skipped for bursts of interference "
-                        "(speech, clatter)")
-    if an.aliases.last_move is not None and not any("alias" in w for w in d.warnings):
-        a_, b_, k_ = an.aliases.last_move
-        warnings.append(f"at pulse {k_} the track was on the alias {a_:+.3f} (relative rate) "
-                        f"and was moved to {b_:+.3f}, which fits the reference table better "
-                        f"({an.aliases.moves} move(s) in all; a rate near p/q blade period per "
-                        "pulse shows few blade angles)")
-    warnings.extend(d.warnings)
-    e = np.concatenate(edges)
-    # the answer for the last window (a recording's own answer, from its last window_s);
-    # the events along the way come from the state machine the daemon runs
-    summary = d.as_dict()
-    summary["device"] = device_figures(aligner, an)
-    summary.update(pulses=int(n_pulses), used_pulses=int(n_valid),
-                   dropped_pulses=dropped,
-                   window_s=round(min(an.window, an.seen) / cfg.prf_hz, 3),
-                   outliers=int(an.tracker.outliers),
-                   clock_ppm=round((float(median(np.diff(e))) / pri - 1.0) * 1e6, 1)
-                   if len(e) > 2 else None,
-                   events=[dict(kind=ev.kind, t_s=round(ev.t_s, 3), **ev.details())
-                           for ev in an.transitions.events],
-                   warnings=warnings)
-    return summary, rows

@@ -1,0 +1,396 @@
+"""Reference building (pure, no I/O): a recording of the fan turning at a steady rate made
+into the angular table the analysis matches against.
+
+build_reference:  align -> gate (given, or from the target's doppler energy) -> period
+                  (blade-pass rate, refined) -> fold all periods into an angular table.
+
+The range-doppler map and the period search run only here, at reference time; the
+analysis (analyzer.py) needs only the table, the mean pulse and the metadata. The
+reference file (io/reference.py) stores a :class:`Reference`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .config import Config
+from .dsp import aliasing
+from .dsp import device as dev
+from .dsp import fingerprint as fp
+from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
+from .dsp.period import estimate_period
+from .dsp.pulses import (
+    BURST,
+    OK,
+    WARMUP,
+    AlignedPulses,
+    PulseAligner,
+    check_recording,
+    count_dropped,
+    too_few_pulses,
+)
+from .dsp.rangedoppler import band_limited, range_doppler, without_shift_and_gain
+from .dsp.stats import median
+from .errors import InputError, ReferenceFileError
+
+#: Share of the band (up to Nyquist) in which a reference's target range is looked for
+#: (the moving energy of the range-doppler map; dsp.pulses.EDGE_BAND's reason).
+TARGET_BAND = 0.7
+
+#: Version of the reference contents; bump when the table's meaning changes.
+REFERENCE_VERSION = 1
+
+
+@dataclass
+class Reference:
+    """A stored reference rotation: the angular table and what it depends on.
+
+    Attributes
+    ----------
+    table : ndarray, shape (B, L)
+        Feature vectors by blade phase (bin b at phase b/B).
+    mean_pulse : ndarray, shape (L,)
+        The reference's static part (mean gated pulse).
+    meta : dict
+        JSON-able: ``depends`` (config values that must match at analysis), blade and
+        rotation rate, direction, periods folded, quality, gate, ...
+    """
+
+    table: np.ndarray
+    mean_pulse: np.ndarray
+    meta: dict[str, Any]
+
+    @property
+    def cycles_per_pulse(self) -> float:
+        return float(self.meta["cycles_per_pulse"])
+
+    @property
+    def gate(self) -> Gate:
+        d = self.meta["depends"]
+        return Gate(int(self.meta["gate_samples"][0]), int(self.meta["gate_samples"][1]),
+                    float(d["audio.sample_rate"]), float(d["scene.speed_of_sound"]))
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON summary ``bladesonar reference`` prints."""
+        m = self.meta
+        keys = ("blade_rate_hz", "rate_hz", "rpm", "periods_folded", "quality", "gate_m",
+                "pulses", "dropped_pulses", "direction", "phase_bins", "cycles_per_pulse",
+                "target_range_m", "line_snr", "direction_contrast", "features", "device",
+                "warnings")
+        return {k: m[k] for k in keys if k in m}
+
+
+def depends_on(cfg: Config) -> dict[str, Any]:
+    """Config values a reference is only valid with (checked when it is loaded)."""
+    return {"audio.sample_rate": cfg.audio.sample_rate,
+            "waveform.pri_samples": cfg.waveform.pri_samples,
+            "waveform.pulse": cfg.waveform.pulse,
+            "waveform.pulse_samples": cfg.waveform.pulse_samples,
+            "scene.blades": cfg.scene.blades,
+            "scene.speed_of_sound": cfg.scene.speed_of_sound,
+            "analysis.features": cfg.analysis.features,
+            "analysis.envelope_smooth": cfg.analysis.envelope_smooth}
+
+
+def check_compatible(ref: Reference, cfg: Config) -> None:
+    """Raise ReferenceFileError naming the first config value that differs from the
+    reference's (and both values); an explicit gate must match the stored one."""
+    want = depends_on(cfg)
+    have = ref.meta.get("depends", {})
+    for key, value in want.items():
+        if key not in have:
+            raise ReferenceFileError(f"the reference does not record {key}; make it again "
+                                     "with 'bladesonar reference'")
+        if have[key] != value:
+            raise ReferenceFileError(
+                f"the reference was made with {key} = {have[key]!r} but the config says "
+                f"{value!r}; use the same config or record a new reference")
+    g = ref.gate
+    for key, val, stored in (("scene.gate_start_m", cfg.scene.gate_start_m, g.start),
+                             ("scene.gate_stop_m", cfg.scene.gate_stop_m, g.stop)):
+        if val is None:
+            continue
+        try:
+            mine = make_gate(cfg.scene.gate_start_m or 0.0, cfg.scene.gate_stop_m,
+                             c=cfg.scene.speed_of_sound, fs=cfg.audio.sample_rate,
+                             pri=cfg.waveform.pri_samples)
+        except ValueError as exc:
+            raise InputError(str(exc)) from exc
+        now = mine.start if key.endswith("start_m") else mine.stop
+        if now != stored:
+            raise ReferenceFileError(
+                f"the reference was made with {key} = "
+                f"{ref.meta['gate_m'][0 if key.endswith('start_m') else 1]:g} m but the config "
+                f"says {val:g} m; use the same gate or record a new reference")
+
+
+def _gate_for_reference(cfg: Config, full: AlignedPulses, prf: float) -> tuple[Gate, float | None]:
+    s, fs, c, pri = cfg.scene, cfg.audio.sample_rate, cfg.scene.speed_of_sound, \
+        cfg.waveform.pri_samples
+    target = s.target_range_m
+    start_m = s.gate_start_m
+    if start_m is None:
+        if target is None:
+            v = full.valid
+            # below TARGET_BAND of Nyquist: the top of the band holds the aligner's
+            # interpolation error, which under clock drift turns with the sub-sample
+            # position and made a strong static echo 0.35 m away look like the moving
+            # target (a random scene at -17 ppm: target 0.315 m, the fan at 2.3 m); and
+            # without each pulse's shift and gain against the mean: a clipped coupling
+            # timed 0.08 sample rms off did the same to a wall 0.47 m away (target
+            # 0.45 m, the fan at 3.4 m)
+            p = without_shift_and_gain(band_limited(full.pulses[v], TARGET_BAND))
+            _, power = range_doppler(p, prf)
+            target = find_target_range(power, fs, c)
+        start_m = max(target - cfg.analysis.gate_margin_m, 0.0)
+    try:
+        return make_gate(start_m, s.gate_stop_m, c=c, fs=fs, pri=pri), target
+    except ValueError as exc:
+        raise InputError(f"range gate: {exc}") from exc
+
+
+#: Least range the gate holds past the fan's direct echo, m: the wall bounces that tell
+#: the direction come 0.3-2 m later, and beyond one PRI they fold into the next pulse's
+#: window, ahead of the gate (a fan 4.6 m away, gate 0.64 m: false reversals every few
+#: seconds in three simulated trials).
+MIN_MULTIPATH_M = 1.2
+
+
+def folds_multipath(gate: Gate, target: float | None) -> bool:
+    """Whether the fan is so far that its wall bounces fold past one PRI."""
+    return target is not None and gate.stop_m - target < MIN_MULTIPATH_M
+
+
+def unfolding_pri(cfg: Config, target: float) -> int:
+    """The PRI (samples) that keeps echoes to 2 m past a fan at ``target`` m."""
+    c, fs = cfg.scene.speed_of_sound, cfg.audio.sample_rate
+    return int(math.ceil(2.0 * (target + 2.0) / c * fs))
+
+
+def _fold_warning(cfg: Config, gate: Gate, target: float | None) -> list[str]:
+    """A warning when the fan is so far that its multipath folds past one PRI."""
+    if target is None or not folds_multipath(gate, target):
+        return []
+    fs, K = cfg.audio.sample_rate, cfg.scene.blades
+    pri = unfolding_pri(cfg, target)
+    return [f"the fan's echo comes from {target:.2f} m and the range gate ends at "
+            f"{gate.stop_m:.2f} m (one PRI): the wall bounces that tell the direction fold "
+            f"into the next pulse, so directions may be unknown or wrong; set "
+            f"waveform.pri_samples to {pri} or more (echoes to {target + 2.0:.1f} m; the "
+            f"fastest fan followed becomes {fs / pri / (2 * K):.2f} Hz), or move the "
+            "device nearer the fan"]
+
+
+def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> Reference:
+    """Make a reference from a recording of the fan turning at a steady rate.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n_samples,)
+        Mono recording, float64 in [-1, 1].
+    cfg : Config
+        Validated settings.
+    direction : {"cw", "ccw", "unknown"}
+        The reference's known rotation (seen from the sensor), for absolute answers.
+
+    Raises
+    ------
+    InputError, EstimationError
+    """
+    if direction not in ("cw", "ccw", "unknown"):
+        raise ValueError(f"direction must be cw, ccw or unknown, got {direction!r}")
+    a = cfg.analysis
+    fs, pri = cfg.audio.sample_rate, cfg.waveform.pri_samples
+    prf = cfg.prf_hz
+    warnings = check_recording(x, pri=pri, min_pulses=a.min_pulses,
+                               max_clip_fraction=a.max_clip_fraction, sample_rate=fs)
+    full_gate = Gate(0, max_gate_stop(pri), float(fs), cfg.scene.speed_of_sound)
+    aligner = PulseAligner(pri, full_gate)
+    full = AlignedPulses.concat([aligner.push(x), aligner.flush()], full_gate.length)
+    v = full.valid
+    if v.sum() < a.min_pulses:
+        raise too_few_pulses(int(v.sum()), len(full), len(x), pri=pri, sample_rate=fs,
+                             min_pulses=a.min_pulses,
+                             dropped=count_dropped(full.status, ended=True))
+    device, warm = _device_figures(full, aligner, prf, fs)
+    warnings.extend(device.pop("warnings"))
+    v = full.valid
+    if v.sum() < a.min_pulses:
+        raise too_few_pulses(int(v.sum()), len(full), len(x), pri=pri, sample_rate=fs,
+                             min_pulses=a.min_pulses,
+                             dropped=count_dropped(full.status, ended=True))
+    gate, target = _gate_for_reference(cfg, full, prf)
+    warnings.extend(_fold_warning(cfg, gate, target))
+    pulses = full.pulses[:, gate.start:gate.stop]
+    k = full.index[v]
+    xv = pulses[v]
+    mean_pulse = xv.mean(axis=0)
+    feats = fp.envelope_features(xv, mean_pulse, kind=a.features, smooth=a.envelope_smooth)
+    y = np.zeros_like(pulses)
+    y[v] = xv - mean_pulse
+    f_all = np.zeros_like(pulses)
+    f_all[v] = feats - feats.mean(axis=0)
+    est = estimate_period(y, full.index, features=f_all, min_periods=a.min_periods,
+                          max_cycles_per_pulse=a.max_phase_per_pulse,
+                          line_snr_min=a.line_snr_min)
+    r = est.cycles_per_pulse
+    span = int(k[-1] - k[0]) + 1 if len(k) else 0
+    folded = aliasing.folded_angles(r, span)
+    if folded is not None:
+        p, q = folded.numerator, folded.denominator
+        warnings.append(
+            f"the reference turns {r:.6f} blade periods per pulse, within "
+            f"{abs(r - p / q):.1e} of {p}/{q}: its {span} pulses show only {q} blade angles, "
+            f"so the table holds only those (interpolated between) and the rate itself may "
+            f"be an alias (another m/{q}; the record cannot tell the order of the angles); "
+            f"record the reference at another fan speed, a few percent faster or slower")
+    bins = fp.auto_bins(r, a.phase_bins)
+    phases = fp.fold_phases(k, r)
+    table, weight = fp.build_table(feats, phases, bins)
+    quality = fp.explained_fraction(feats, table, phases)
+    window = max(int(round(cfg.daemon.window_s * prf)), 20)
+    contrast = direction_contrast(feats, phases, bins, window)
+    if contrast is not None and contrast < aliasing.MIRROR_DOUBT_Z:
+        warnings.append(
+            f"from here the fan's echoes turned either way are nearly alike (direction "
+            f"contrast {contrast:.1f} < {aliasing.MIRROR_DOUBT_Z:g}): the wall echoes that "
+            f"tell the directions apart are weak, so the direction will often be unknown "
+            f"and each new one waits for its own evidence; a place nearer a wall, further "
+            f"off the fan's axis, makes them stronger")
+    blade_hz = r * prf
+    rate_hz = blade_hz / cfg.scene.blades
+    dropped = count_dropped(full.status, ended=True)
+    if dropped:
+        warnings.append(f"{dropped} pulses dropped or corrupt (not used)")
+    meta = {
+        "format": "bladesonar-reference", "version": REFERENCE_VERSION,
+        "depends": depends_on(cfg),
+        "gate_samples": [gate.start, gate.stop],
+        "gate_m": [round(gate.start_m, 4), round(gate.stop_m, 4)],
+        "range_convention": "one-way range = c * delay / 2 from the direct-coupling edge",
+        "cycles_per_pulse": r, "blade_rate_hz": round(blade_hz, 7),
+        "rate_hz": round(rate_hz, 7), "rpm": round(rate_hz * 60.0, 5), "prf_hz": prf,
+        "periods_folded": round(float(est.periods), 3), "phase_bins": bins,
+        "quality": round(quality, 4), "line_snr": round(est.line_snr, 2),
+        "explained_lines": round(est.explained, 4),
+        "direction": direction, "pulses": int(len(full)), "used_pulses": int(v.sum()),
+        "dropped_pulses": dropped,
+        "target_range_m": None if target is None else round(float(target), 4),
+        "features": a.features, "min_bin_weight": round(float(weight.min()), 3),
+        "device": device, "warmup_pulses": warm,
+        "warnings": warnings,
+    }
+    if contrast is not None:
+        meta["direction_contrast"] = round(contrast, 2)
+    return Reference(table=table, mean_pulse=mean_pulse, meta=meta)
+
+
+def direction_contrast(feats: np.ndarray, phases: np.ndarray, bins: int, window: int
+                       ) -> float | None:
+    """How clearly the reference's own pulses tell their direction from its mirror: the
+    median, over windows of the analysis's length, of :func:`aliasing.mirror_evidence` of
+    each half's pulses against a table built from the other half (a table built from the
+    same pulses would favour their own path). None for too short a recording."""
+    n = len(feats)
+    half = n // 2
+    zs: list[float] = []
+    for test, train in ((slice(half, n), slice(0, half)), (slice(0, half), slice(half, n))):
+        table, _ = fp.build_table(feats[train], phases[train], bins)
+        fine = aliasing.fine_table(table)
+        f, p = feats[test], phases[test]
+        for s0 in range(0, len(f) - aliasing.MIRROR_MIN_PULSES + 1, window):
+            z, sweep, _ = aliasing.mirror_evidence(
+                aliasing.distances(f[s0:s0 + window], fine), p[s0:s0 + window], fine)
+            if sweep >= aliasing.MIRROR_MIN_SWEEP and math.isfinite(z):
+                zs.append(z)
+    if not zs:
+        return None
+    zs.sort()                 # the median by hand: np.median imports numpy.ma (the daemon)
+    m = len(zs) // 2
+    return zs[m] if len(zs) % 2 else 0.5 * (zs[m - 1] + zs[m])
+
+
+def _device_figures(full: AlignedPulses, aligner: PulseAligner, prf: float, fs: float
+                    ) -> tuple[dict[str, Any], int]:
+    """What the reference recording shows of the device and room (dsp/device.py), and the
+    pulses a pulse train's start needs before its windows hold the whole reverberation.
+
+    Marks in ``full.status`` the build-up pulses (WARMUP) and the bursts (BURST), so the
+    reference is made of the steady, quiet pulses only.
+    """
+    warnings: list[str] = []
+    v = full.valid
+    x = full.pulses
+    idx = np.nonzero(v)[0]
+    late = idx[len(idx) // 2:]
+    mean = x[late].mean(axis=0)
+    # noise of one pulse from lag-1 differences over the late half of the window, where
+    # the fan's echoes are weakest (an upper bound: the fan adds to it)
+    L = x.shape[1]
+    pair = late[1:][np.diff(late) == 1]
+    if len(pair):
+        d = x[pair, L // 2:] - x[pair - 1, L // 2:]
+        noise_var = 0.5 * float(np.mean(d * d))
+    else:
+        noise_var = float(np.var(x[late, L // 2:]))
+    zone = aligner.coupling_zone
+    # bursts: a robust level of each pulse's residual (the median of its squares; the
+    # fan's echoes are a few samples, a burst covers the window)
+    v = full.valid
+    res = x[v] - mean
+    level = median(res * res, axis=1)
+    burst = dev.burst_mask(level)
+    full.status[np.nonzero(v)[0][burst]] = BURST
+    v = full.valid
+    gains = dev.projection_gains(x[v, zone:], mean[zone:])
+    wander = dev.gain_wander_db(gains, prf)
+    # every pulse brought to the mean's gain (an AGC's wander would otherwise leave a share
+    # of the strong static echoes in every residual); the analysis does the same
+    # (StaticRemover.skip_bursts)
+    rows = np.nonzero(v)[0]
+    good = np.isfinite(gains) & (gains > 0)
+    if wander > dev.NORMALISE_ABOVE_DB:
+        x[rows[good]] /= gains[good][:, None]
+    # the room's tail: from the pulse train's start when the recording shows it (exact),
+    # else from the static part's decay along the window (rough)
+    ok = full.status == OK
+    if wander > dev.NORMALISE_ABOVE_DB:
+        mean = x[late[full.status[late] == OK]].mean(axis=0)
+    n_lead = min(len(x), 400)
+    lead = np.where(ok[:n_lead, None], x[:n_lead, zone:], np.nan)
+    rt60, building = dev.tail_from_buildup(lead, mean[zone:], aligner.pri, fs)
+    how = "build-up"
+    if rt60 <= 0:
+        rt60 = dev.tail_rt60(mean, noise_var / max(len(late), 1), fs, start=zone)
+        how = "decay"
+    warm = max(dev.buildup_pulses(rt60, prf) if how == "build-up" else 0, building)
+    first = int(full.index[0]) if len(full) else 0
+    full.status[(full.status == OK) & (full.index < first + warm)] = WARMUP
+    measured = max(aligner.edges_measured, 1)
+    clipped = aligner.coupling_clipped / measured
+    figures = {
+        "clipped_coupling": round(clipped, 4),
+        "coupling_zone_samples": zone,
+        "gain_wander_db": round(wander, 2) if math.isfinite(wander) else None,
+        "burst_pulses": int(burst.sum()),
+        "rt60_s": round(rt60, 3),
+        "tail_pris": round(rt60 * prf, 1),
+        "tail_from": how if rt60 > 0 else None,
+        "warnings": warnings,
+    }
+    if clipped > 0:
+        warnings.append(f"the direct coupling is clipped in {100 * clipped:.0f}% of the pulses "
+                        "(handled: those edges follow the transmit schedule); a lower "
+                        "playback volume or capture gain keeps more headroom")
+    if wander > 3.0:
+        warnings.append(f"the capture gain wanders by {wander:.1f} dB (an AGC?): turn the "
+                        "microphone's automatic gain control off where the driver allows it")
+    if burst.sum():
+        warnings.append(f"{int(burst.sum())} pulses skipped for bursts of interference "
+                        "(speech, clatter); record the reference in a quiet room")
+    return figures, warm
+
