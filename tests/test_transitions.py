@@ -270,9 +270,11 @@ def test_slow_fast_and_wobbling_fans_hold_their_answer(scene, reference, slow_re
     assert np.mean(settled) >= 0.95, np.mean(settled)
 
 
-def _d(direction, rate=0.4):
+def _d(direction, rate=0.4, checked=True):
+    """A decision; a turning one's line has beaten its mirror (``checked``) unless told."""
     turning = direction in ("same", "reversed")
-    return Decision(direction, None, None, rate if turning else 0.0, None, 0.9, "test")
+    return Decision(direction, None, None, rate if turning else 0.0, None, 0.9, "test",
+                    mirror_checked=turning and checked)
 
 
 def test_state_machine_needs_confirmation_and_fires_between_known_states():
@@ -918,3 +920,62 @@ def test_a_speed_published_briefly_bounds_new_lines_at_a_multiple_of_itself(refe
     an.state = _d("reversed", 0.3)
     bound_at(20.0)
     assert bound_at(22.0) == pytest.approx(0.3 + 0.1)
+
+
+def _walk(seq, prf=34.0):
+    """Step a fresh machine (confirm 0.5 s, 0.3 Hz/s) through ``seq``; (events as (kind,
+    pulse), published directions, the machine)."""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.3,
+                                        reversal_hold_s=1.0), prf)
+    fired, published = [], []
+    for i, d in enumerate(seq):
+        out, ev = tr.step(i / prf, i, d)
+        fired += [(e.kind, e.pulse) for e in ev]
+        published.append(out.direction)
+    return fired, published, tr
+
+
+def test_a_sudden_reversal_needs_a_line_that_beat_its_mirror():
+    """Closed form, 34 pulses/s, 0.3 Hz/s: 'same' at 0.21 Hz to pulse 99, then the other
+    way at 0.2 Hz from pulse 100, 0.03 s later, where through zero a fan needs 0.41 / 0.3
+    = 1.37 s: a track taken up on the mirror of the blade pattern. On a line not shown to
+    beat its mirror (a new lock) it is never a reversal, however long it lasts; on one
+    that has, it is one after reversal_hold_s (1 s: from pulse 100, at pulse 134)."""
+    same = [_d("same", 0.21)] * 100
+    fired, published, tr = _walk(same + [_d("reversed", 0.2, checked=False)] * 200)
+    assert fired == [] and tr.known == "+"
+    assert set(published[100:]) == {"unknown"}
+    fired, _, _ = _walk(same + [_d("reversed", 0.2)] * 60)
+    assert fired == [("reversed", 134)]
+
+
+def test_a_reversal_through_zero_needs_no_mirror_check():
+    """Closed form: 'same' slowing from 0.3 Hz at 0.15 Hz/s to 0.1 Hz (pulse 45, 1.32
+    s), nothing for 1 s (34 pulses), then the other way from 0.1 Hz: 1.0 s after 0.1 Hz
+    is later than the 0.67 s a fan needs through zero at 0.3 Hz/s, so a new line, not
+    yet checked against its mirror, confirms at its 17th answer (pulse 79 + 16)."""
+    down = [_d("same", 0.3 - 0.15 * i / 34) for i in range(46)]
+    gap = [Decision("unknown", None, None, None, None, 0.0, "no match")] * 33
+    up = [_d("reversed", 0.1 + 0.15 * i / 34, checked=False) for i in range(40)]
+    fired, _, _ = _walk(down + gap + up)
+    assert fired == [("reversed", 79 + 16)]
+
+
+def test_in_a_doubtful_room_a_fan_seen_turning_throughout_does_not_reverse():
+    """Closed form: 'same' at 0.2 Hz, then 10 s (340 pulses) in which the direction is in
+    doubt but the fan is seen turning at 0.2 Hz, then a line the other way at 0.2 Hz that
+    has beaten its mirror once (a chance in a room whose echoes turned either way fit
+    alike). In a doubtful room the answers in doubt carry the chain: no reversal, the
+    other way is published as unknown. Where the room is not doubtful they do not, and
+    the 10 s suffice for a reversal: it fires at the 17th answer."""
+    def doubt(room):
+        return Decision("unknown", None, None, 0.2, None, 0.3, "direction in doubt",
+                        turning=True, doubtful_room=room)
+    def other(room):
+        return Decision("reversed", None, None, 0.2, None, 0.9, "test",
+                        mirror_checked=True, doubtful_room=room)
+    same = [_d("same", 0.2)] * 40
+    fired, published, tr = _walk(same + [doubt(True)] * 340 + [other(True)] * 100)
+    assert fired == [] and tr.known == "+" and set(published[380:]) == {"unknown"}
+    fired, _, _ = _walk(same + [doubt(False)] * 340 + [other(False)] * 100)
+    assert fired == [("reversed", 380 + 16)]

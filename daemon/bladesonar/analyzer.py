@@ -570,14 +570,14 @@ class PulseAnalyzer:
 
         Held from the first 'stopped' decision after the fan was seen turning at three
         times the floor (the copy of the estimate from then) until it is seen turning at
-        that rate again (a weak answer in the old direction from a spurious line near
-        rest does not count), but no longer than HOLD_S: over a long rest the room itself
-        drifts (a few degrees of temperature move its strong static echoes), and an old
-        estimate would leave that drift in every residual. True when the estimate
-        changed."""
+        that rate again, either way or with its direction in doubt (a weak answer in the
+        old direction from a spurious line near rest does not count), but no longer than
+        HOLD_S: over a long rest the room itself drifts (a few degrees of temperature move
+        its strong static echoes), and an old estimate would leave that drift in every
+        residual. True when the estimate changed."""
         st = self.state
-        turning = st is not None and st.direction in ("same", "reversed") and \
-            (st.rate_hz or 0.0) >= 3.0 * self.cfg.tracking.rate_floor_hz
+        turning = st is not None and (st.direction in ("same", "reversed") or st.turning) \
+            and (st.rate_hz or 0.0) >= 3.0 * self.cfg.tracking.rate_floor_hz
         if turning:
             self._turning_k = k
         if not self.static.frozen:
@@ -736,6 +736,8 @@ class PulseAnalyzer:
             # tracked rate is the latest and lags it); a changing one is the follower's
             args["rate"] = mean
             d = decide(**args)
+        d.mirror_checked = locked and self.aliases.mirror_checked(self.tracker)
+        d.doubtful_room = self.aliases.doubtful
         misfit = self.scale_misfit
         if misfit and d.direction in ("same", "reversed"):
             return Decision("unknown", None, d.relative_rate, d.rate_hz, d.rpm,

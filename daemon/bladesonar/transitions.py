@@ -134,6 +134,15 @@ def _kind(direction: str) -> str | None:
     return {"stopped": "stopped", "same": "+", "reversed": "-"}.get(direction)
 
 
+#: Share of the time a fan needs to reverse (through zero at ``max_reversal_hz_s``, itself
+#: twice the steepest ramp followed) under which an answer the other way is sudden
+#: (:meth:`Transitions._sudden_reversal`): a track taken up on the mirror of the blade
+#: pattern claims the other way within a few tenths of a second at the old speed, a
+#: real reversal comes at least twice that time later, but a spurious lock of the old
+#: direction after zero (0.2 Hz, 1.3 s before the new direction's first answer at 0.19
+#: Hz) can shift the chain by most of it.
+SUDDEN_SHARE = 0.5
+
 #: The kinds that turn: one way, the other, or either ('~': the direction in doubt).
 TURNING = ("+", "-", "~")
 
@@ -161,6 +170,8 @@ class Transitions:
         self._cand_n = 0
         self._cand_rate = 0.0                # |rate| of the candidate's first answer (Hz)
         self._cand_t = 0.0                   # and its time (s)
+        self._cand_sudden = False            # a reversal whose first answer came too soon
+        self._chain: tuple[float, float] | None = None   # (t, rate) last seen turning on
         self._zero_by: float | None = None   # a slowing fan would pass zero by then (s)
         self._slowing_hz_s = 0.0
         self._seen: deque[tuple[float, float]] = deque()   # (t, rate) turning, well above
@@ -204,6 +215,13 @@ class Transitions:
                            confidence=min(d.confidence, 0.5), turning=False,
                            reason=f"a lone answer {d.direction} amid a stop's "
                                   f"confirmation: {d.reason}"), []
+        if cand is None and d.turning and d.doubtful_room and self.known in ("+", "-") \
+                and _rate(d) >= slow:
+            # in a room whose echoes turned either way fit alike, a window in doubt about
+            # the direction still shows the fan turning at its rate: it has not passed
+            # through zero since (the chain that a reversal must break)
+            self._see_known(t_s, _rate(d))
+            self._chain = self._known_seen
         self._watch_slowing(t_s, d, cand)
         if cand in TURNING and (cand == self.known or self.known not in ("+", "-")):
             # only the known direction renews the cap of the wait for a reversal: a new
@@ -222,15 +240,28 @@ class Transitions:
         if cand in TURNING:
             if cand == self.known:
                 self._see_known(t_s, _rate(d))
+                self._chain = self._known_seen  # (bounded from rest like it)
         elif cand == "stopped" and self.known in TURNING:
             self._see_known(t_s, 0.0)
+            self._chain = None              # seen at rest: a reversal may follow
         if cand is not None and cand != self._cand:
             self._cand = cand
             self._support.clear()
             self._cand_rate, self._cand_t = _rate(d), float(t_s)
+            self._cand_sudden = self._sudden_reversal(t_s, self._cand_rate, cand)
         fired: list[Event] = []
         if cand is None:
             return d, fired
+        if self._cand_sudden and cand != self.known and (d.doubtful_room
+                                                         or not d.mirror_checked):
+            # the other way at once, at a speed no fan reaches so soon through zero: the
+            # mirror image of the blade pattern, unless the new line has beaten its mirror
+            # (in a room where directions are in doubt not even then)
+            return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
+                           confidence=min(d.confidence, 0.5), turning=False,
+                           reason=f"turning {d.direction} at once after the other way, "
+                                  f"sooner than a fan reverses, on a line not shown to "
+                                  f"beat its mirror image: {d.reason}"), fired
         need = self._stop_confirm if cand == "stopped" else self._confirm
         # pulses for the candidate within twice its confirmation time: an unknown answer
         # between them (a weak window, an alias check's doubt) pauses the count instead
@@ -307,6 +338,22 @@ class Transitions:
             t0, r0 = self._known_seen
             rate = min(rate, r0 + st.max_reversal_hz_s * max(float(t_s) - t0, 0.0))
         self._known_seen = (float(t_s), rate)
+
+    def _sudden_reversal(self, t_s: float, rate: float, cand: str) -> bool:
+        """Whether an answer of ``cand`` at ``rate`` (Hz), the other way from the known
+        direction, comes sooner than a fan could reverse from the last answer of the known
+        way (down through zero and up at ``max_reversal_hz_s``), with no answer of rest
+        between (the meter lags them: a fan reversed at 0.12 Hz/s read as at rest 0.5 s
+        after it was turning the other way at 0.16 Hz): a fan that really
+        reverses is driven through zero at a ramp, and answers that jump to the other way
+        at about the old speed are a track taken up on the mirror of the blade pattern
+        (false reversals at 0.19-0.74 Hz in random rooms, the same speed either side)."""
+        st = self.settings
+        if self.known not in ("+", "-") or cand not in ("+", "-") or cand == self.known \
+                or self._chain is None or not st.max_reversal_hz_s > 0:
+            return False
+        t, old = self._chain
+        return float(t_s) < t + SUDDEN_SHARE * (old + rate) / st.max_reversal_hz_s
 
     def _soonest_reversal(self, t_s: float, rate: float) -> float | None:
         """When a fan last seen turning the known way could be seen turning the other

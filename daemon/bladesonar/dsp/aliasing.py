@@ -402,6 +402,16 @@ class AliasWatch:
         self._phase = np.full(self.window, math.nan)
         self._every = max(self.window // 4, 8)
 
+    def mirror_checked(self, tr: Tracker) -> bool:
+        """Whether track ``tr``'s line has fitted the table clearly better than its
+        mirror line (``MIRROR_Z``)."""
+        return tr.locked and self._mirror_ok is not None and self._mirror_ok == tr.identity
+
+    @property
+    def doubtful(self) -> bool:
+        """Whether directions have lately been in doubt here (``MIRROR_DOUBTFUL``)."""
+        return self.mirror_doubt >= MIRROR_DOUBTFUL
+
     def push(self, k: int, dist: np.ndarray, phase: float = math.nan) -> None:
         """Pulse ``k``'s distances to the fine table (:func:`distances`) and the track's
         phase at it (NaN: none)."""

@@ -263,6 +263,12 @@ class Decision:
     """The fan turns by this window's evidence, whichever way: set with a direction, and
     on an ``unknown`` whose only doubt is the direction (a confident track well above
     the floor, in doubt because its mirror image or an alias rate fits as well)."""
+    mirror_checked: bool = False
+    """The track's line has fitted the reference clearly better than its mirror image
+    (:meth:`aliasing.AliasWatch.mirror_checked`): its direction is no mirror lock."""
+    doubtful_room: bool = False
+    """Directions have lately been in doubt in this room (its echoes turned either way
+    fit about equally: :attr:`aliasing.AliasWatch.doubtful`)."""
 
     def as_dict(self) -> dict[str, Any]:
         def r(v: float | None, n: int) -> float | None:
