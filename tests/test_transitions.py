@@ -979,3 +979,21 @@ def test_in_a_doubtful_room_a_fan_seen_turning_throughout_does_not_reverse():
     assert fired == [] and tr.known == "+" and set(published[380:]) == {"unknown"}
     fired, _, _ = _walk(same + [doubt(False)] * 340 + [other(False)] * 100)
     assert fired == [("reversed", 380 + 16)]
+
+
+def test_weak_answers_at_the_same_speed_keep_a_fan_from_reversing_at_once():
+    """Closed form: 'same' at 0.36 Hz, then 10 s (340 pulses) of answers too weak for a
+    direction at 0.33-0.38 Hz (a track on the mirror line), then the other way at 0.36 Hz
+    on a line not yet checked against its mirror: the weak answers at the fan's speed
+    show it never slowed, so the other way came at once: no reversal. Weak answers at
+    speeds far from it (alias lines, 1.1 Hz) show nothing, and 10 s suffice for a
+    reversal: it fires at the 17th answer."""
+    def weak(rate):
+        return Decision("unknown", None, None, rate, None, 0.3, "weak evidence")
+    same = [_d("same", 0.36)] * 40
+    near = [weak(0.33 + 0.05 * (i % 2)) for i in range(340)]
+    other = [_d("reversed", 0.36, checked=False)] * 100
+    fired, published, tr = _walk(same + near + other)
+    assert fired == [] and tr.known == "+" and set(published[380:]) == {"unknown"}
+    fired, _, _ = _walk(same + [weak(1.1)] * 340 + other)
+    assert fired == [("reversed", 380 + 16)]

@@ -142,6 +142,11 @@ def _kind(direction: str) -> str | None:
 #: direction after zero (0.2 Hz, 1.3 s before the new direction's first answer at 0.19
 #: Hz) can shift the chain by most of it.
 SUDDEN_SHARE = 0.5
+#: How close (a share of it) an answer with no direction must come to the speed the fan
+#: was last seen turning at to show that it still turns (:meth:`Transitions.step`): a
+#: fan slowing to reverse changes speed by less within the few tenths of a second
+#: between answers, while tracks on alias lines read other speeds altogether.
+CHAIN_AGREE = 0.25
 
 #: The kinds that turn: one way, the other, or either ('~': the direction in doubt).
 TURNING = ("+", "-", "~")
@@ -222,6 +227,14 @@ class Transitions:
             # through zero since (the chain that a reversal must break)
             self._see_known(t_s, _rate(d))
             self._chain = self._known_seen
+        elif cand is None and self.known in ("+", "-") and self._chain is not None \
+                and _rate(d) >= slow \
+                and abs(_rate(d) - self._chain[1]) <= CHAIN_AGREE * self._chain[1]:
+            # a window too weak for a direction that still sees the fan at the speed it
+            # had: no reversal through zero lies between (a track on the mirror line at
+            # 0.33-0.38 Hz with weak evidence for 10 s, then one confident answer the
+            # other way: a false reversal in a room at 7 dB)
+            self._chain = (float(t_s), _rate(d))
         self._watch_slowing(t_s, d, cand)
         if cand in TURNING and (cand == self.known or self.known not in ("+", "-")):
             # only the known direction renews the cap of the wait for a reversal: a new
@@ -252,16 +265,6 @@ class Transitions:
         fired: list[Event] = []
         if cand is None:
             return d, fired
-        if self._cand_sudden and cand != self.known and (d.doubtful_room
-                                                         or not d.mirror_checked):
-            # the other way at once, at a speed no fan reaches so soon through zero: the
-            # mirror image of the blade pattern, unless the new line has beaten its mirror
-            # (in a room where directions are in doubt not even then)
-            return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
-                           confidence=min(d.confidence, 0.5), turning=False,
-                           reason=f"turning {d.direction} at once after the other way, "
-                                  f"sooner than a fan reverses, on a line not shown to "
-                                  f"beat its mirror image: {d.reason}"), fired
         need = self._stop_confirm if cand == "stopped" else self._confirm
         # pulses for the candidate within twice its confirmation time: an unknown answer
         # between them (a weak window, an alias check's doubt) pauses the count instead
@@ -270,6 +273,17 @@ class Transitions:
         while self._support and self._support[0][0] <= int(pulse) - 2 * need:
             self._support.popleft()
         self._cand_n = sum(n for _, n in self._support)
+        if self._cand_sudden and cand != self.known and (d.doubtful_room
+                                                         or not d.mirror_checked):
+            # the other way at once, at a speed no fan reaches so soon through zero: the
+            # mirror image of the blade pattern, unless the new line has beaten its mirror
+            # (in a room where directions are in doubt not even then); its answers count
+            # for its confirmation all the same, which the check, once passed, completes
+            return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
+                           confidence=min(d.confidence, 0.5), turning=False,
+                           reason=f"turning {d.direction} at once after the other way, "
+                                  f"sooner than a fan reverses, on a line not shown to "
+                                  f"beat its mirror image: {d.reason}"), fired
         if cand != self.known:
             guard = self._reversal_guard(t_s) \
                 if cand == "stopped" and not d.seen_still else None

@@ -525,6 +525,19 @@ class AliasWatch:
             return self._no_verdict()
         signed = wrap(np.diff(path))
         back = min(float(signed[signed > 0].sum()), float(-signed[signed < 0].sum()))
+        if back > MIRROR_TURN_SHARE * float(np.abs(signed).sum()):
+            # a path through a turn: only its part since the last step against the way
+            # it goes now can be told from its mirror (a track taken up just before a
+            # reversal waited a whole window, 5 s, for its turn to leave it)
+            against = np.flatnonzero(signed * (1.0 if w >= 0 else -1.0) < 0)
+            if len(against):
+                j = int(against[-1]) + 1
+                idx, k, path = idx[j:], k[j:], path[j:]
+                if len(k) < MIRROR_MIN_PULSES:
+                    return self._no_verdict()
+                signed = wrap(np.diff(path))
+                back = min(float(signed[signed > 0].sum()),
+                           float(-signed[signed < 0].sum()))
         z, sweep, mirror_offset = mirror_evidence(self._dist[idx], path, self.fine)
         if sweep < MIRROR_MIN_SWEEP or back > MIRROR_TURN_SHARE * sweep:
             return self._no_verdict()   # a path and its mirror are nearly the same
