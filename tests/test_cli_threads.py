@@ -13,8 +13,8 @@ import pytest
 
 CODE = """
 import ctypes, glob, os
-import bladesonar.cli as c
-c.single_threaded_blas()            # what main() does first
+import bladesonar.blas as c
+c.single_threaded_blas()            # what cli.main() does first
 import numpy
 libs = glob.glob(os.path.join(os.path.dirname(numpy.__file__) + ".libs", "*openblas*.so*"))
 lib = ctypes.CDLL(libs[0]) if libs else None

@@ -12,7 +12,8 @@ PKG = "bladesonar"
 #: The layers, lowest first: (name, the modules and packages in it). ``bladesonar``
 #: alone is the package's ``__init__`` (its version); a package name covers its modules.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("ground", ("bladesonar", "bladesonar.text", "bladesonar.errors", "bladesonar.schema")),
+    ("ground", ("bladesonar", "bladesonar.text", "bladesonar.errors", "bladesonar.schema",
+                "bladesonar.blas")),
     ("settings", ("bladesonar.config", "bladesonar.config_doc")),
     ("computation", ("bladesonar.waveform", "bladesonar.dsp", "bladesonar.sim",
                      "bladesonar.imaging", "bladesonar.reference_fit",
@@ -154,3 +155,38 @@ def test_the_checks_find_what_they_look_for():
     assert circles(g) == [["p.a", "p.b", "p.c"]]
     assert circles({"p.a": {"p.b"}, "p.b": set(), "p.c": {"p.a", "p.b"}}) == []
     assert layer_of("p.d", layers) is None
+
+
+def _tool_imports(path: Path) -> set[str]:
+    """The bladesonar modules a Python tool imports (its AST; a tool's subprocess code in
+    a string is not an import of the tool's)."""
+    got = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            got |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            got |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+    return {m for m in got if m == PKG or m.startswith(PKG + ".")}
+
+
+def test_no_tool_reaches_up_into_the_command_line(repo_root):
+    """Tools use the package's lower modules (the BLAS setting is bladesonar.blas); one
+    that wants a command runs it (``python -m bladesonar``), not cli.py's functions."""
+    tools = [p for p in sorted((repo_root / "tools").iterdir()) if p.is_file() and (
+        p.suffix == ".py" or p.read_bytes()[:64].split(b"\n")[0].endswith(b"python3"))]
+    assert len(tools) >= 5
+    bad = {p.name: sorted(m for m in _tool_imports(p)
+                          if m in ("bladesonar.cli", "bladesonar.__main__"))
+           for p in tools}
+    assert not {k: v for k, v in bad.items() if v}, bad
+    assert "bladesonar.cli" in _tool_imports_text("from bladesonar.cli import main\n")
+
+
+def _tool_imports_text(code: str) -> set[str]:
+    import tempfile
+    with tempfile.NamedTemporaryFile("w", suffix=".py", delete=False) as f:
+        f.write(code)
+    try:
+        return _tool_imports(Path(f.name))
+    finally:
+        Path(f.name).unlink()

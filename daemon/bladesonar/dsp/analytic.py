@@ -62,7 +62,6 @@ def analytic_magnitude(y: np.ndarray, band: float = 1.0) -> np.ndarray:
     spec[..., 1:(nfft + 1) // 2] *= 2.0
     if band < 1.0:
         spec[..., max(int(band * (nfft // 2)), 1):] = 0.0
-    full = np.zeros(y.shape[:-1] + (nfft,), dtype=complex)
-    full[..., :spec.shape[-1]] = spec
-    out: np.ndarray = np.abs(np.fft.ifft(full, axis=-1)[..., :L])
+    # ifft's n pads the half spectrum with the zeros of the negative frequencies
+    out: np.ndarray = np.abs(np.fft.ifft(spec, n=nfft, axis=-1)[..., :L])
     return out
