@@ -189,7 +189,6 @@ class PulseAnalyzer:
     motion: MotionMeter = field(init=False)
     window: int = field(init=False)
     _recent: list[tuple[bool, float]] = field(default_factory=list)  # (accepted, quality)
-    _recent_k: list[int] = field(default_factory=list)               # and their pulses
     _prev: np.ndarray | None = None               # last raw pulse (for the noise level)
     _noise: float = float("nan")                  # running raw half lag-1 difference energy
     dropped: int = 0
@@ -314,10 +313,8 @@ class PulseAnalyzer:
                     self._noise + (e - self._noise) / self.window)
             self._prev = xv[i]
             self._recent.append((not st.outlier and st.locked, float(m.quality[i])))
-            self._recent_k.append(int(k))
             if len(self._recent) > self.window:
                 del self._recent[0]
-                del self._recent_k[0]
             t_s = float(edge) / fs
             self._since += 1
             fired: list[Event] = []
@@ -676,7 +673,6 @@ class PulseAnalyzer:
         if tr.recheck(aliases):
             # the old line's rejections say nothing about the new one
             self._recent.clear()
-            self._recent_k.clear()
 
     def _clear_accel(self) -> float:
         """The tracked acceleration beyond twice its standard deviation (0 when it could be
@@ -705,16 +701,8 @@ class PulseAnalyzer:
         acc = np.array([r[0] for r in self._recent], dtype=np.float64)
         qual = np.array([r[1] for r in self._recent], dtype=np.float64)
         # share of the informative matches that the track accepted, each weighted like the
-        # filter weighs it (1 / measurement variance, i.e. quality squared): of those since
-        # the track began once it has a lock's worth of them (the matches of a fan
-        # speeding up before any track held it are no track's rejections: counted, they
-        # held a start's confidence under 0.5 for 1.5 s after the track had it right)
+        # filter weighs it (1 / measurement variance, i.e. quality squared)
         wq = qual * qual
-        tr = self.tracker
-        if tr.x is not None and tr.start_k is not None:
-            since = np.asarray(self._recent_k) >= tr.start_k
-            if int(since.sum()) >= tr.settings.init_pulses:
-                wq = np.where(since, wq, 0.0)
         accepted = float((acc * wq).sum() / wq.sum()) if wq.sum() > 1e-12 else 0.0
         x = self.tracker.x
         locked = x is not None
