@@ -617,11 +617,13 @@ class Service:
             return
         ref_known = self.reference is not None and \
             self.reference.meta.get("direction") in ("cw", "ccw")
-        direction = self._pending_direction or rec.direction(ref_known)
+        # a direction a person chose wins; else the airflow measured on the recording
+        # (learner.learn), else what the estimates against the old reference said
+        direction = self._pending_direction or "unknown"
         x = rec.samples()
         self._rec = None
         if not self.jobs.submit("learn", learner.learn, x, self.cfg, direction,
-                                self.cfg.reference_path):
+                                self.cfg.reference_path, rec.direction(ref_known)):
             log.warning("a reference job is running; the recording is dropped")
             return
         self._learn_why = rec.why
@@ -757,6 +759,8 @@ class Service:
             self.publisher.publish_event(
                 "reference_learned", reference=info.get("id"), rate_hz=info.get("rate_hz"),
                 quality=info.get("quality"), direction=info.get("direction"), source=why,
+                direction_source=info.get("direction_source"),
+                airflow=info.get("airflow"), airflow_confidence=info.get("airflow_confidence"),
                 warnings=info.get("warnings") or [])
             # read back what was written, new analyzer, re-align; at once, so that no
             # status lies between learning and the new reference
