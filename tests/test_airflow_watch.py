@@ -52,7 +52,8 @@ def test_a_measurement_is_due_once_the_window_is_full_then_every_so_often():
     _advance(w, aw.WINDOW_S - 1)
     assert w.due() is None
     _advance(w, 1)
-    assert w.due() is not None and len(w.due()) == aw.WINDOW_S * w.fs
+    x = w.due()
+    assert x is not None and len(x) == aw.WINDOW_S * w.fs
     w.submitted(learning=False)
     _advance(w, aw.EVERY_S - 1)
     assert w.due() is None
