@@ -18,7 +18,7 @@ import numpy as np
 
 from .dsp import airflow as af
 from .dsp import fingerprint as fp
-from .dsp.gate import make_gate
+from .dsp.gate import Gate, make_gate
 from .dsp.pulses import AlignedPulses, align
 from .errors import EstimationError, InputError
 
@@ -28,15 +28,19 @@ AIRFLOW_GATE_START_M = 0.3
 WARMUP_PULSES = 20
 
 
-def _aligned(x: np.ndarray, cfg: Any) -> AlignedPulses:
+def _gate(cfg: Any) -> Gate:
     fs, pri = float(cfg.audio.sample_rate), int(cfg.waveform.pri_samples)
     s = cfg.scene
     start = s.gate_start_m if s.gate_start_m is not None else AIRFLOW_GATE_START_M
     try:
-        gate = make_gate(start, s.gate_stop_m, c=s.speed_of_sound, fs=fs, pri=pri)
+        return make_gate(start, s.gate_stop_m, c=s.speed_of_sound, fs=fs, pri=pri)
     except ValueError as exc:
         raise InputError(f"range gate: {exc}") from exc
-    return align(np.asarray(x, dtype=np.float64), pri, gate, warmup=WARMUP_PULSES)
+
+
+def _aligned(x: np.ndarray, cfg: Any) -> AlignedPulses:
+    return align(np.asarray(x, dtype=np.float64), int(cfg.waveform.pri_samples), _gate(cfg),
+                 warmup=WARMUP_PULSES)
 
 
 def recording_airflow(x: np.ndarray, cfg: Any) -> af.Airflow:
@@ -163,3 +167,45 @@ def reference_airflow(x: np.ndarray, cfg: Any, given: str | None) -> ReferenceAi
     keys = airflow_keys(a, cfg)
     keys["direction_source"] = source
     return ReferenceAirflow(direction, source, tuple(warnings), keys)
+
+
+@dataclass(frozen=True)
+class RangeTime:
+    """The moving echoes' envelopes against pulse time and range (the stage's step 2:
+    static room removed both ways, weighted, slow part removed), with the airflow the
+    stage measures on the whole recording and its glint slope."""
+
+    image: np.ndarray
+    """(pulses, ranges): envelope of the moving echoes; pulses not usable are zero."""
+    time_s: np.ndarray
+    """Each row's time from the first aligned pulse, s."""
+    range_m: np.ndarray
+    """Each column's one-way range, m."""
+    airflow: af.Airflow
+    slope_m_s: float
+    """The glints' one-way range change, m/s (- approaching: down)."""
+
+
+def range_time(x: np.ndarray, cfg: Any, *, start_s: float = 0.0,
+               seconds: float | None = None) -> RangeTime:
+    """The range-time picture of ``x`` (``bladesonar plot airflow``): the whole recording's
+    envelopes and airflow (the stage needs seconds of pulses), then the rows from
+    ``start_s`` for ``seconds``."""
+    pulses = _aligned(x, cfg)
+    fs = float(cfg.audio.sample_rate)
+    prf = fs / cfg.waveform.pri_samples
+    a = af.measure(pulses.pulses, pulses.valid, prf)
+    res, ok, static = af.moving_part(pulses.pulses, pulses.valid, prf)
+    img = np.maximum(af.envelope_image(res, ok, static, prf), 0.0)
+    g = _gate(cfg)
+    t = (pulses.index - (pulses.index[0] if len(pulses.index) else 0)) / prf
+    keep = t >= start_s
+    if seconds is not None:
+        keep &= t < start_s + seconds
+    if not keep.any():
+        raise InputError(f"no pulses from {start_s:g} s for {seconds} s: the recording "
+                         f"holds {t[-1] if len(t) else 0.0:.1f} s of pulses")
+    c = float(cfg.scene.speed_of_sound)
+    r = (g.start + np.arange(img.shape[1])) * c / (2.0 * fs)
+    slope = a.shift * c / (2.0 * fs) * prf
+    return RangeTime(img[keep], t[keep], r, a, float(slope))
