@@ -89,7 +89,7 @@ def test_a_contradiction_is_a_status_only_when_sustained_and_clears_when_it_stop
     d = w.contradiction_detail("ccw")
     assert d is not None
     for part in ("is up", "confidence 0.99", "t +9.0", "means cw", "says ccw",
-                 "reference direction ccw", "for 90 s", "set it to cw"):
+                 "reference direction ccw", f"for {aw.SUSTAIN_S:.0f} s", "set it to cw"):
         assert part in d, (part, d)
     # measurements that cannot compare (airflow unknown) keep it for CLEAR_S, then clear
     last = w.now

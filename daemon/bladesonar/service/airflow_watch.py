@@ -28,9 +28,10 @@ from ..airflow_recording import WindowFigures
 #: memory at 2 MiB (float32).
 WINDOW_S = 12.0
 #: Stream seconds between measurements while a reference runs: one costs about 0.12 s of
-#: CPU on a 12 s window (tools/bench_daemon: a few tenths of a percent of a core), and a
-#: fan's airflow changes only when someone reverses it.
-EVERY_S = 30.0
+#: CPU on a 12 s window, and a fan's airflow changes only when someone reverses it. Every
+#: 30 s cost 0.50 % of a core in tools/bench_daemon (the worker thread's share), every
+#: 60 s 0.31 % (docs/mqtt.md#the-live-airflow).
+EVERY_S = 60.0
 #: Between measurements before the first reference: the rate from the blade period is
 #: then the only rate there is (0.33 s of CPU with it), and no fingerprint runs.
 EVERY_LEARNING_S = 10.0
@@ -39,10 +40,10 @@ KEEP_S = 3 * EVERY_S + WINDOW_S
 #: A contradiction becomes a status once every measurement for this long contradicted
 #: the fingerprint's direction (4 windows in a row at EVERY_S): a reversal the
 #: fingerprint saw before the airflow window did, or one odd window, never is one.
-SUSTAIN_S = 90.0
+SUSTAIN_S = 3 * EVERY_S
 #: It clears at the first confident agreement, or after this long without a
 #: contradiction (measurements that cannot compare: unknown airflow or rotation).
-CLEAR_S = 90.0
+CLEAR_S = 3 * EVERY_S
 
 
 class SampleWindow:
