@@ -443,8 +443,10 @@ class Service:
             return
         from ..airflow_recording import window_figures
 
+        cfg = self.cfg           # as it is now: a reload must not change a job under way
+
         def job() -> Any:
-            return window_figures(x, self.cfg, rate=learning)
+            return window_figures(x, cfg, rate=learning)
 
         if self.airflow_jobs.submit("airflow", job):
             self.airflow.submitted(learning)
