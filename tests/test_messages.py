@@ -103,9 +103,17 @@ def test_state_payload_from_a_live_estimate():
         "direction": "reversed", "rotation": "cw", "rotating": True, "running": True,
         "rate_hz": 0.35036,
         "rpm": 21.021, "relative_rate": -0.70069, "rate_state": "changing",
-        "rate_change_hz_s": -0.0451, "confidence": 0.9718, "window_s": 4.0,
+        "rate_change_hz_s": -0.0451, "confidence": 0.9718, "airflow": "unknown",
+        "airflow_confidence": None, "window_s": 4.0,
         "reference": "0123456789ab", "status": "ok",
         "reason": "relative rate -0.7007 +- 0.0208", "time": "2023-11-14T22:13:20.250+00:00"}
+
+
+def test_state_payload_carries_the_live_airflow():
+    fields = {**live_estimate().fields(), "airflow": "down", "airflow_confidence": 0.97}
+    p = M.state_payload(fields, t=T0)
+    assert (p["airflow"], p["airflow_confidence"]) == ("down", 0.97)
+    assert M.state_payload({**fields, "airflow": "sideways"}, t=T0)["airflow"] == "unknown"
 
 
 def test_state_payload_fills_missing_keys_with_null_and_keeps_status():
@@ -552,6 +560,24 @@ def test_state_templates_give_words_for_people_and_none_when_not_known():
             assert v not in HA_RESERVED
     unknown = M.state_payload(None, t=T0, status="reference_missing", detail="no file")
     assert states_of(unknown, "state")["confidence"] == "None"
+
+
+def test_airflow_sensor_says_down_or_up_and_none_when_not_known():
+    c = configs()[("sensor", "airflow")]
+    assert c["name"] == "Airflow" and c["device_class"] == "enum"
+    assert c["options"] == ["Down (summer)", "Up (winter)"]
+    base = _estimate("same", "ccw", 0.45).fields()
+    for word, shown in (("down", "Down (summer)"), ("up", "Up (winter)"),
+                        ("unknown", "None"), (None, "None")):
+        p = M.state_payload({**base, "airflow": word, "airflow_confidence": 0.9}, t=T0)
+        assert states_of(p, "state")["airflow"] == shown, word
+    # before the first reference: the airflow and the rate with the direction unknown
+    early = M.state_payload({"direction": "unknown", "rotating": True, "rotation": "cw",
+                             "rate_hz": 0.6, "rpm": 36.0, "airflow": "up",
+                             "airflow_confidence": 0.99}, t=T0, status="learning")
+    got = states_of(early, "state")
+    assert (got["airflow"], got["rotation"], got["rate"], got["rpm"]) == \
+        ("Up (winter)", "clockwise", "0.6", "36.0")
 
 
 def test_status_and_select_templates():

@@ -9,9 +9,11 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 
+import numpy as np
 import pytest
 
 from bladesonar.cli import main
+from bladesonar.errors import BladesonarError
 
 pytestmark = pytest.mark.slow   # renders PNGs (matplotlib): outside the fast tier
 
@@ -132,3 +134,47 @@ def test_analysis_and_daemon_never_import_matplotlib(repo_root):
     out = subprocess.run([sys.executable, "-c", "import json; " + code], capture_output=True,
                          text=True, check=True, cwd=repo_root).stdout
     assert json.loads(out) == []
+
+
+@pytest.mark.parametrize("schedule, airflow", [("cw:0.6:8", "up"), ("ccw:0.6:8", "down")])
+def test_the_airflow_picture_shows_streaks_whose_slope_is_the_airflow(
+        repo_root, tmp_path, schedule, airflow):
+    """The living-room 3-D fan (+12 degrees pitch) turning cw blows up: its glints
+    recede (a rising slope); turning ccw, down (falling). The picture's axes are the
+    pulses' times and the gate's ranges; the SVG names the airflow and the slope."""
+    import matplotlib
+
+    from bladesonar import config
+    from bladesonar.airflow_recording import range_time
+    from bladesonar.io.wav import read_wav
+
+    wav = tmp_path / "fan.wav"
+    assert main(["simulate", "--scene", str(repo_root / "config/scenes/living-room-3d.yaml"),
+                 "--seconds", "8", "--schedule", schedule, "--snr-db", "12", "--seed", "5",
+                 "--drift-ppm", "60", "--no-paths", "--quiet", "--out", str(wav)]) == 0
+    cfg = config.from_mapping({})
+    x, _ = read_wav(str(wav), expect_rate=cfg.audio.sample_rate)
+    rt = range_time(x, cfg, start_s=1.0, seconds=3.0)
+    assert rt.airflow.airflow == airflow
+    assert (rt.slope_m_s > 0) == (airflow == "up") and abs(rt.slope_m_s) > 0.05
+    assert rt.time_s[0] >= 1.0 and rt.time_s[-1] < 4.0
+    assert len(rt.time_s) == pytest.approx(3.0 * cfg.prf_hz, abs=1)
+    assert rt.range_m[0] == pytest.approx(0.3, abs=343.0 / 44100)
+    assert np.allclose(np.diff(rt.range_m), 343.0 / (2 * 44100))
+    assert rt.image.shape == (len(rt.time_s), len(rt.range_m)) and rt.image.min() >= 0
+    with pytest.raises(BladesonarError, match="no pulses from 30 s"):
+        range_time(x, cfg, start_s=30.0, seconds=1.0)
+    matplotlib.rcParams["svg.fonttype"] = "none"
+    try:
+        out = tmp_path / "a.svg"
+        assert main(["plot", "airflow", "--seconds", "3", "--max-range", "3", "--out",
+                     str(out), str(wav)]) == 0
+        text = out.read_text()
+    finally:
+        matplotlib.rcParams["svg.fonttype"] = "path"
+    assert f"airflow {airflow}" in text and "measured glint slope" in text
+    assert "time (s)" in text and "from the direct-coupling edge" in text
+    png = tmp_path / "a.png"
+    assert main(["plot", "airflow", "--out", str(png), str(wav)]) == 0
+    w, h = _png_size(png)
+    assert 600 <= w <= 900 and 450 <= h <= 650

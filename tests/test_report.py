@@ -242,3 +242,52 @@ def test_a_sweep_of_transitions_alone_writes_its_report(tmp_path):
     assert "## Latency of start, stop and reversal against SNR" in md
     assert "| 20 dB | 1 |" in md                      # its one trial's row
     assert not (tmp_path / "o" / "compute_vs_window.png").exists()
+
+
+def test_an_airflow_sweep_scores_random_3d_scenes_against_their_truth(tmp_path):
+    """The airflow family alone: random 3-D scenes (their truth from the draw: pitch
+    times rotation), each measured over two observation times with no reference; the
+    report's counts are the trials' verdicts, and the trials' truth is the draw's."""
+    from bladesonar.sim.random_scene import draw_3d
+
+    g = tmp_path / "grid.json"
+    family = {"name": "airflow", "scenes": [], "blades": [], "ratios": [], "snrs_db": [],
+              "windows_s": [4.0, 10.0], "seeds": 3, "airflow": True}
+    g.write_text(json.dumps({"families": [family], "airflow_seed0": 500001}))
+    assert main(["report", "--grid", str(g), "--jobs", "1", "--no-plots", "--out",
+                 str(tmp_path / "o")]) == 0
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    trials = [json.loads(x) for x in (tmp_path / "o" / "trials.jsonl").read_text()
+              .splitlines()]
+    assert len(trials) == 6 and {t["seconds"] for t in trials} == {4.0, 10.0}
+    for t in trials:
+        assert t["truth"] == draw_3d(t["seed"]).airflow
+        assert t["verdict"] == ("right" if t["call"] == t["truth"] else
+                                "unknown" if t["call"] == "unknown" else "wrong")
+    af = rep["airflow"]
+    last = [t for t in trials if t["seconds"] == 10.0]
+    assert af["scenes"] == 3 and af["seeds"] == [500001, 500003]
+    assert (af["right"], af["unknown"], af["wrong"]) == tuple(
+        sum(t["verdict"] == v for t in last) for v in ("right", "unknown", "wrong"))
+    assert af["wrong"] == 0 and af["right"] >= 2            # the stage on fresh scenes
+    by_time = af["families"]["seconds"]
+    assert sum(by_time["4"].values()) == sum(by_time["10"].values()) == 3
+    for key in ("axis_offset_m", "snr_db", "rate_abs_hz", "pitch_abs_deg"):
+        assert sum(sum(c.values()) for c in af["families"][key].values()) == 3, key
+    md = (tmp_path / "o" / "report.md").read_text()
+    assert "## Airflow with no reference" in md and "By offset from the axis (m)" in md
+
+
+def test_airflow_families_bin_by_magnitude_half_open():
+    from bladesonar.runtime_report import airflow_families
+
+    rows = [dict(axis_offset_m=1.0, snr_db=8.0, rate_hz=-0.3, pitch_deg=-10.0, seconds=6.0,
+                 verdict="right"),
+            dict(axis_offset_m=0.99, snr_db=20.0, rate_hz=1.6, pitch_deg=18.0, seconds=15.0,
+                 verdict="wrong")]
+    f = airflow_families(rows)
+    assert f["axis_offset_m"]["1-2"]["right"] == 1 and f["axis_offset_m"]["0.5-1"]["wrong"] == 1
+    assert f["rate_abs_hz"]["0.3-0.6"]["right"] == 1 and f["rate_abs_hz"]["1-1.61"]["wrong"] == 1
+    assert f["pitch_abs_deg"]["10-14"]["right"] == 1
+    assert f["pitch_abs_deg"]["14-18.01"]["wrong"] == 1
+    assert f["snr_db"]["8-12"]["right"] == 1 and f["seconds"]["12-15.01"]["wrong"] == 1

@@ -214,3 +214,25 @@ def test_sections_without_rows_are_left_out():
                      "blades, same rate as the reference, sign alternating",
                      "## Rate error, median / 95th percentile (%)",
                      "## Compute: analyze CPU time per second of audio (ms/s)"]
+
+
+def test_airflow_section_counts_and_wrong_calls_in_bold():
+    from bladesonar.report_text import airflow_section
+
+    fam = {"axis_offset_m": {"0.5-1": {"right": 5, "unknown": 0, "wrong": 0},
+                             "2-3.01": {"right": 2, "unknown": 1, "wrong": 1}},
+           "seconds": {"4": {"right": 3, "unknown": 6, "wrong": 0},
+                       "15": {"right": 7, "unknown": 1, "wrong": 1}}}
+    af = {"scenes": 9, "longest_s": 15.0, "right": 7, "unknown": 1, "wrong": 1,
+          "seeds": [400001, 400009], "families": fam,
+          "not_right": [{"seed": 400004, "seconds": 15.0, "truth": "up", "call": "down",
+                         "airflow_t": -4.2, "axis_offset_m": 2.7, "snr_db": 5.1,
+                         "rate_hz": 1.2, "pitch_deg": 9.0}]}
+    lines = airflow_section(af)
+    text = "\n".join(lines)
+    assert lines[0] == "## Airflow with no reference"
+    assert "At 15 s: **7 / 1 / 1** (77.8 % right" in text
+    assert "| 2-3.01 | 2 | 1 | **1** |" in lines and "| 0.5-1 | 5 | 0 | 0 |" in lines
+    assert "| 4 | 3 | 6 | 0 |" in lines
+    assert "seed 400004 (up called down, t -4.2, 2.7 m off the axis, 5.1 dB, +1.20 Hz)" in text
+    assert airflow_section({}) == []

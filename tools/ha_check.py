@@ -425,6 +425,11 @@ logger:
             check(st["rotation"]["state"] == "unknown" and st["direction"]["state"] == "same",
                   f"Rotation unknown, Direction to reference same, while the direction is "
                   f"not set ({st['rotation']['state']}, {st['direction']['state']})")
+            af = st.get("airflow")
+            check(af is not None and af["state"] == "unknown"
+                  and af["attributes"].get("options") == ["Down (summer)", "Up (winter)"],
+                  f"Airflow made (enum Down (summer) / Up (winter)) and unknown over the 2-D "
+                  f"room's flat blades ({af['state'] if af else 'missing'})")
             if dev:
                 trig = (await ha.ws({"type": "device_automation/trigger/list",
                                      "device_id": dev[0]["id"]}))[0]["result"]

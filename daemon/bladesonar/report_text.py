@@ -67,6 +67,7 @@ def markdown(rep: dict[str, Any], *, images: dict[str, str] | None = None) -> st
         L += _scene_family_section([r for r in rows if r["family"] == family], family, title)
     L += _reversal_section(rep.get("reversals", []), meta)
     L += transitions_section(rep.get("transitions", []), meta)
+    L += airflow_section(rep.get("airflow") or {})
     L += _references_section(rep.get("references", {}))
     return "\n".join(L) + "\n"
 
@@ -302,4 +303,49 @@ def nuisance_section(rows: list[dict[str, Any]]) -> list[str]:
                     + [_err(by[s]) if s in by else "" for s in snrs])
     L += _table(head, body)
     L.append("")
+    return L
+
+
+#: Titles of the airflow family's figures.
+_AIRFLOW_TITLES = {"axis_offset_m": "offset from the axis (m)", "snr_db": "SNR (dB)",
+                   "rate_abs_hz": "rate (Hz)", "pitch_abs_deg": "pitch (degrees)",
+                   "seconds": "observation time (s)"}
+
+
+def airflow_section(af: dict[str, Any]) -> list[str]:
+    """'Airflow with no reference': right / unknown / wrong by observation time, and at
+    the longest time by offset from the axis, SNR, rate and pitch."""
+    if not af:
+        return []
+    n = af["scenes"]
+    L = ["## Airflow with no reference", "",
+         f"{n} random 3-D scenes (`sim/random_scene.py` `draw_3d`, seeds "
+         f"{af['seeds'][0]}-{af['seeds'][1]}: box rooms, the sensor 0.5-3 m off the fan's "
+         "axis, pitch 6-18° either way, 0.15-1.6 Hz either way, some from rest over a "
+         "ramp, 3-5 blades, 4-20 dB, drift up to 150 ppm, reverberation, small speakers, "
+         "AGC and bursts), written as 16-bit samples; the airflow stage "
+         "([airflow.md](airflow.md)) on the first T seconds of each, no reference. "
+         "right / unknown / **wrong** (a call is never a guess: the rest is unknown). "
+         f"At {af['longest_s']:g} s: **{af['right']} / {af['unknown']} / {af['wrong']}** "
+         f"({100 * af['right'] / n if n else 0:.1f} % right; the issue's target: 97 % right "
+         "and none wrong).", ""]
+    for key, title in _AIRFLOW_TITLES.items():
+        fam = (af.get("families") or {}).get(key)
+        if not fam:
+            continue
+        where = "" if key == "seconds" else f" (at {af['longest_s']:g} s)"
+        body = [[b, str(c["right"]), str(c["unknown"]),
+                 f"**{c['wrong']}**" if c["wrong"] else "0"] for b, c in fam.items()]
+        L.append(f"By {title}{where}:")
+        L.append("")
+        L += _table([title, "right", "unknown", "wrong"], body)
+        L.append("")
+    bad = af.get("not_right") or []
+    wrong = [r for r in bad if r["call"] != "unknown"]
+    if wrong:
+        L.append("Wrong calls at the longest time: " + "; ".join(
+            f"seed {r['seed']} ({r['truth']} called {r['call']}, t {r['airflow_t']:+.1f}, "
+            f"{r['axis_offset_m']:g} m off the axis, {r['snr_db']:g} dB, "
+            f"{r['rate_hz']:+.2f} Hz)" for r in wrong) + ".")
+        L.append("")
     return L

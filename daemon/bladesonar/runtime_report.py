@@ -68,6 +68,10 @@ TRANSITION_TARGETS_S = {"started": 2.0, "stopped": 3.0, "reversed": 2.0}
 TRANSITIONS_SCHEDULE = "stop:0:6,{d}:{r}:14~5,stop:0:14~8,{d}:{r}:12~4,{o}:{r}:16~10"
 
 
+#: The airflow family's first seed (Grid.airflow_seed0).
+AIRFLOW_SEED0 = 400_001
+
+
 @dataclass(frozen=True)
 class Family:
     """One sweep: every combination of its lists, ``seeds`` random seeds each."""
@@ -83,11 +87,16 @@ class Family:
     jitter: float = 0.05               # each seed's rate is ratio * (1 + U(-j, j))
     transitions: bool = False          # Grid.transitions_schedule instead of windows
     nuisances: tuple[str, ...] = ()    # sim/nuisances.py PRESETS: one row each
+    airflow: bool = False              # random 3-D scenes (draw_3d), no reference: the
+    #                                    airflow stage over observation times windows_s
 
     def __post_init__(self) -> None:
         if self.reversal and self.transitions:
             raise ValueError(f"family {self.name!r}: reversal and transitions exclude each "
                              "other")
+        if self.airflow and (self.reversal or self.transitions or not self.windows_s):
+            raise ValueError(f"family {self.name!r}: an airflow family takes observation "
+                             "times (windows_s) and neither reversal nor transitions")
 
 
 @dataclass(frozen=True)
@@ -102,14 +111,19 @@ class Grid:
     seed0: int = 1
     transitions_schedule: str = TRANSITIONS_SCHEDULE
     transitions_drift_ppm: float = 40.0
+    #: The first seed of the airflow family's random 3-D scenes: a range of its own,
+    #: apart from the airflow stage's tuning seeds (1..) and tools/bench_airflow's held-out
+    #: runs (100 001..100 400), so the report judges scenes no decision looked at.
+    airflow_seed0: int = AIRFLOW_SEED0
 
     @property
     def scenes(self) -> tuple[str, ...]:
-        return tuple(dict.fromkeys(s for f in self.families for s in f.scenes))
+        return tuple(dict.fromkeys(s for f in self.families if not f.airflow
+                                   for s in f.scenes))
 
     def references(self) -> list[tuple[str, int]]:
-        return list(dict.fromkeys((s, k) for f in self.families for s in f.scenes
-                                  for k in f.blades))
+        return list(dict.fromkeys((s, k) for f in self.families if not f.airflow
+                                  for s in f.scenes for k in f.blades))
 
 
 #: The nuisance rows of the quick sweep.
@@ -118,6 +132,9 @@ QUICK_NUISANCES = ("none", "clipped coupling (10x full scale)", "reverberation R
 WINDOWS = (0.25, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 20.0, 30.0)
 SNRS = (-5.0, 0.0, 5.0, 10.0, 20.0, 30.0)
 ROOMS = ("paper-room", "corner-sensor", "small-office", "narrow-hall")
+#: Observation times of the airflow family, s (the stage calls nothing under 8 blocks of
+#: 16 pulse pairs, about 4 s).
+AIRFLOW_WINDOWS = (4.0, 6.0, 9.0, 12.0, 15.0)
 
 
 def commensurate_ratio(prf_hz: float, blades: int, ref_rate_hz: float, period: int = 17
@@ -140,6 +157,7 @@ def default_grid(quick: bool = False, prf_hz: float = 44100 / 1297) -> Grid:
                    transitions=True),
             Family("nuisances", ("paper-room",), (4,), (0.84,), (10.0,), (5.0,), 1,
                    nuisances=QUICK_NUISANCES),
+            Family("airflow", (), (), (), (), (6.0, 12.0), 4, airflow=True),
         ), ref_seconds=12.0, reversal_at_s=6.0, reversal_seconds=12.0)
     return Grid(families=(
         Family("window_snr", ("paper-room",), (4,), (1.0,), SNRS, WINDOWS, 24),
@@ -154,6 +172,7 @@ def default_grid(quick: bool = False, prf_hz: float = 44100 / 1297) -> Grid:
                (0.0, 5.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0), (), 6, transitions=True),
         Family("nuisances", ("paper-room",), (4,), (0.84,), (0.0, 10.0), (5.0,), 6,
                nuisances=tuple(PRESETS)),
+        Family("airflow", (), (), (), (), AIRFLOW_WINDOWS, 60, airflow=True),
     ))
 
 
@@ -170,6 +189,7 @@ class Job:
     jitter: float = 0.0
     transitions: bool = False
     nuisance: str = ""
+    airflow: bool = False
 
     @property
     def true_ratio(self) -> float:
@@ -186,6 +206,14 @@ def jobs(grid: Grid) -> list[Job]:
     """One job per (family, scene, blades, ratio, seed): all its SNRs and windows."""
     out = []
     for f in grid.families:
+        if f.airflow:
+            from .sim.random_scene import draw_3d
+
+            for i in range(f.seeds):
+                seed = grid.airflow_seed0 + i
+                out.append(Job(f.name, "random-3d", draw_3d(seed).blades, 0.0, (),
+                               f.windows_s, seed, airflow=True))
+            continue
         for s in f.scenes:
             for k in f.blades:
                 for r in f.ratios:
@@ -493,6 +521,111 @@ def aggregate(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
             cpu_per_audio_s=round(cpu / audio, 6) if audio else None,
             aliased=bool(g[0]["aliased"])))
     return rows
+
+
+# -- the airflow family ---------------------------------------------------------------
+
+#: The bins of each airflow figure (the records' keys; rate and pitch by magnitude):
+#: tools/bench_airflow reports its sweep by the same ones.
+AIRFLOW_BINS: dict[str, tuple[float, ...]] = {
+    "axis_offset_m": (0.5, 1.0, 2.0, 3.01), "snr_db": (4, 8, 12, 16, 20.01),
+    "rate_abs_hz": (0.15, 0.3, 0.6, 1.0, 1.61), "pitch_abs_deg": (6, 10, 14, 18.01),
+    "seconds": (4, 6, 9, 12, 15.01)}
+AIRFLOW_VERDICTS = ("right", "unknown", "wrong")
+
+
+def _airflow_value(r: dict[str, Any], key: str) -> float:
+    if key == "rate_abs_hz":
+        return abs(float(r["rate_hz"]))
+    if key == "pitch_abs_deg":
+        return abs(float(r["pitch_deg"]))
+    return float(r[key])
+
+
+def airflow_families(rows: list[dict[str, Any]],
+                     bins: dict[str, tuple[float, ...]] | None = None
+                     ) -> dict[str, dict[str, dict[str, int]]]:
+    """Right / unknown / wrong counts of airflow trials (``verdict``) by each figure's
+    bins ('lo-hi': half-open)."""
+    out: dict[str, dict[str, dict[str, int]]] = {}
+    for key, edges in (bins or AIRFLOW_BINS).items():
+        fam = {}
+        for lo, hi in zip(edges[:-1], edges[1:], strict=False):
+            sel = [r for r in rows if lo <= _airflow_value(r, key) < hi]
+            fam[f"{lo:g}-{hi:g}"] = {v: sum(r["verdict"] == v for r in sel)
+                                    for v in AIRFLOW_VERDICTS}
+        out[key] = fam
+    return out
+
+
+def airflow_verdict(truth: str, call: str) -> str:
+    return "right" if call == truth else "unknown" if call == "unknown" else "wrong"
+
+
+def _longer(schedule: str, seconds: float) -> str:
+    """A draw's one-segment schedule ``dir:rate:seconds[~ramp]`` lasting ``seconds``."""
+    d, rate, rest = schedule.split(":")
+    ramp = rest.split("~")[1] if "~" in rest else None
+    return f"{d}:{rate}:{seconds:g}" + (f"~{ramp}" if ramp else "")
+
+
+def run_airflow_job(job: Job) -> list[dict[str, Any]]:
+    """One random 3-D scene (sim/random_scene.py ``draw_3d``), rendered for the longest
+    observation time and written as 16-bit samples, as tools/bench_airflow does; its
+    airflow measured on each prefix of ``windows_s`` seconds (from the first pulse: a
+    spin-up's ramp included), with no reference."""
+    from .airflow_recording import recording_airflow
+    from .sim.random_scene import draw_3d
+
+    dr = draw_3d(job.seed)
+    cfg = _config.from_mapping({"scene": {"blades": dr.blades}})
+    longest = max(job.windows_s)
+    sim = Simulator(dr.scene, cfg, _longer(dr.schedule, longest), snr_db=dr.snr_db,
+                    seed=job.seed, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
+                    include_paths=False)
+    x = np.concatenate([c for c, _ in sim.chunks(longest)])
+    x = np.clip(np.round(x * 32768.0), -32768, 32767) / 32768.0
+    fs = cfg.audio.sample_rate
+    d = dr.describe()
+    out = []
+    for w in job.windows_s:
+        t0 = time.process_time()
+        a = recording_airflow(x[:int(round(w * fs))], cfg)
+        cpu = time.process_time() - t0
+        out.append(dict(family=job.family, scene=job.scene, blades=dr.blades,
+                        ratio=round(dr.rate_hz, 4), rate_hz=round(dr.rate_hz, 4),
+                        snr_db=round(dr.snr_db, 1), seconds=w, seed=job.seed,
+                        axis_offset_m=d["axis_offset_m"], pitch_deg=d["pitch_deg"],
+                        drift_ppm=d["drift_ppm"], nuisances=d["nuisances"],
+                        truth=dr.airflow, call=a.airflow,
+                        verdict=airflow_verdict(dr.airflow, a.airflow),
+                        airflow_t=round(a.t, 2), cpu_s=cpu, audio_s=w))
+    return out
+
+
+def aggregate_airflow(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """The airflow family: counts per observation time, and at the longest time (each
+    scene once) by offset from the axis, SNR, rate and pitch; the trials not right."""
+    rows = [r for r in records if "verdict" in r]
+    if not rows:
+        return {}
+    longest = max(r["seconds"] for r in rows)
+    last = [r for r in rows if r["seconds"] == longest]
+    count = {v: sum(r["verdict"] == v for r in last) for v in AIRFLOW_VERDICTS}
+    fams = airflow_families(last, {k: v for k, v in AIRFLOW_BINS.items() if k != "seconds"})
+    times = {}
+    for w in sorted({r["seconds"] for r in rows}):
+        g = [r for r in rows if r["seconds"] == w]
+        times[f"{w:g}"] = {v: sum(r["verdict"] == v for r in g) for v in AIRFLOW_VERDICTS}
+    fams["seconds"] = times
+    return dict(scenes=len(last), longest_s=longest, **count,
+                seeds=[min(r["seed"] for r in rows), max(r["seed"] for r in rows)],
+                families=fams,
+                not_right=[{k: r[k] for k in ("seed", "seconds", "truth", "call",
+                                               "airflow_t", "axis_offset_m", "snr_db",
+                                               "rate_hz", "pitch_deg")}
+                           for r in rows if r["verdict"] != "right"
+                           and r["seconds"] == longest])
 
 
 def aggregate_reversals(records: list[dict[str, Any]]) -> list[dict[str, Any]]:

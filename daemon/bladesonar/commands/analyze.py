@@ -58,7 +58,7 @@ def _airflow(x: Any, cfg: Any, *, quiet_errors: bool = False) -> dict[str, Any]:
     """The airflow keys; with ``quiet_errors`` a recording the stage cannot use gives
     ``unknown`` with the reason instead of an error (the reference's answer still
     stands)."""
-    from ..airflow_recording import recording_airflow
+    from ..airflow_recording import airflow_keys, recording_airflow
     from ..errors import InputError
 
     try:
@@ -68,11 +68,7 @@ def _airflow(x: Any, cfg: Any, *, quiet_errors: bool = False) -> dict[str, Any]:
             raise
         return dict(airflow="unknown", airflow_confidence=0.0, airflow_rotation=None,
                     airflow_reason=str(exc))
-    out = a.as_dict()
-    turn = cfg.scene.downdraft_rotation
-    out["airflow_rotation"] = (None if a.airflow == "unknown" else turn if a.airflow == "down"
-                               else ("cw" if turn == "ccw" else "ccw"))
-    return out
+    return airflow_keys(a, cfg)
 
 
 def run(args: argparse.Namespace) -> int:

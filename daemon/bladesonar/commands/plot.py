@@ -25,6 +25,9 @@ kinds:
   matrix  pulse-to-pulse matching distance of two recordings; stripe slope = rate ratio
   track   the filtered angular fingerprint of 'analyze --track' rows, decisions, reversals
   sim     simulated multipath ranges against pulse number, ccw solid and cw dashed
+  airflow the moving echoes' envelopes against time and range (static removed): the glint
+          streaks, falling for a down-draft and rising for an up-draft, and the slope the
+          airflow stage measured (no reference needed)
 
 One-way range = c * delay / 2, delay counted from the direct-coupling edge. The format comes
 from the --out suffix (.png or .svg). Needs matplotlib: pip install 'bladesonar[plots]'.
@@ -36,6 +39,7 @@ examples:
   bladesonar analyze --reference ref.npz --track probe.wav > t.jsonl
   bladesonar plot track --truth probe.truth.json --out track.png t.jsonl
   bladesonar plot sim --scene config/scenes/paper-room.yaml --out sim.png
+  bladesonar plot airflow --seconds 3 --max-range 3 --out airflow.png fan.wav
 """
 
 
@@ -69,7 +73,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     kinds = p.add_subparsers(dest="kind", metavar="KIND", required=True)
     for add in (_rd_options, _isar_options, _matrix_options, _track_options,
-                _sim_options):
+                _sim_options, _airflow_options):
         _common(add(kinds))
 
 
@@ -163,6 +167,20 @@ def _sim_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return q
 
 
+def _airflow_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    q = kinds.add_parser("airflow", help="range-time picture of the moving echoes: the "
+                         "glint streaks and their slope")
+    q.add_argument("wav", metavar="IN.wav")
+    q.add_argument("--start", type=float, default=0.0, metavar="S",
+                   help="first second shown (default 0)")
+    q.add_argument("--seconds", type=_positive(float, "give a duration in s > 0"),
+                   default=4.0, metavar="S", help="seconds shown (default 4; the airflow "
+                   "is measured on the whole recording, its first 23.8 s at most)")
+    q.add_argument("--max-range", type=_positive(float, "give a range in m > 0"),
+                   metavar="M", help="top of the range axis, m (default: the gate's end)")
+    return q
+
+
 def run(args: argparse.Namespace) -> int:
     from ..plots import out_format
 
@@ -170,7 +188,8 @@ def run(args: argparse.Namespace) -> int:
     from .. import plots
 
     plots.pyplot()  # and a missing matplotlib
-    fn = {"rd": _rd, "isar": _isar, "matrix": _matrix, "track": _track, "sim": _sim}
+    fn = {"rd": _rd, "isar": _isar, "matrix": _matrix, "track": _track, "sim": _sim,
+          "airflow": _airflow}
     path = fn[args.kind](args)
     print(str(path))
     return 0
@@ -337,3 +356,16 @@ def _sim(args):
     title = args.title or (f"{scene.name}: simulated multipath echoes at {args.rate:g} Hz, "
                            "solid ccw, dashed cw")
     return sim.draw(ccw, cw, args.out, title=title, direct_ccw=dc, direct_cw=dw)
+
+
+def _airflow(args):
+    from ..airflow_recording import range_time
+    from ..io.wav import read_wav
+    from ..plots import airflow
+    from .analyze import AIRFLOW_SAMPLES
+
+    cfg = _cfg(args)
+    x, _ = read_wav(args.wav, expect_rate=cfg.audio.sample_rate,
+                    max_samples=AIRFLOW_SAMPLES, cut=True)
+    rt = range_time(x, cfg, start_s=args.start, seconds=args.seconds)
+    return airflow.draw(rt, args.out, title=args.title or "", max_range_m=args.max_range)

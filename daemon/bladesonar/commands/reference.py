@@ -15,7 +15,14 @@ analysis.min_periods blade periods (a few seconds). Ranges are one-way, c * dela
 the direct-coupling edge. The summary's rate_hz is the fan's rotation rate (blade-pass
 frequency / blades).
 
+Without --direction the airflow measured on the recording sets the direction when it is
+confident (down: scene.downdraft_rotation, up: the other way; docs/airflow.md), else it
+stays unknown; the summary's airflow keys and direction_source (given, airflow or none)
+say which. A --direction that a confident airflow contradicts is stored, with a warning
+that has the figures.
+
 examples:
+  bladesonar reference --config cfg.yaml --out ref.npz reference.wav
   bladesonar reference --config cfg.yaml --direction ccw --out ref.npz reference.wav
   bladesonar reference --live --seconds 20 --direction ccw --config /etc/bladesonar/bladesonar.yaml
 
@@ -33,8 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "fan, fold all its periods into an angular table and store it.",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", metavar="CFG", help="YAML config (default: built-in defaults)")
-    p.add_argument("--direction", required=True, choices=("cw", "ccw", "unknown"),
-                   help="the fan's rotation during this recording, seen from the sensor")
+    p.add_argument("--direction", choices=("cw", "ccw", "unknown"),
+                   help="the fan's rotation during this recording, seen from the sensor "
+                   "(below); default: from the airflow measured on the recording when it "
+                   "is confident (scene.downdraft_rotation), else unknown")
     p.add_argument("--out", metavar="REF", help="reference file to write (.npz); default with "
                    "--live: the daemon's daemon.state_dir/daemon.reference")
     p.add_argument("--live", action="store_true", help="record through the configured audio "
@@ -48,6 +57,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import logging
+
+    from ..airflow_recording import reference_airflow
     from ..errors import InputError
     from ..io.config_file import load_config
     from ..io.reference import save_reference
@@ -83,10 +95,16 @@ def run(args: argparse.Namespace) -> int:
         x, _ = read_wav(args.wav, expect_rate=cfg.audio.sample_rate,
                         max_samples=REFERENCE_SAMPLES, cut=True)
         out_path = args.out
-    ref = build_reference(x, cfg, args.direction)
+    chosen = reference_airflow(x, cfg, args.direction)
+    ref = build_reference(x, cfg, chosen.direction)
+    if chosen.warnings:
+        ref.meta["warnings"] = [*ref.meta.get("warnings", []), *chosen.warnings]
+        for text in chosen.warnings:
+            logging.getLogger(__name__).warning("%s", text)
     _remove_stale_temps(out_path)
     save_reference(ref, out_path)
     out = ref.summary()
+    out.update(chosen.keys)
     out["out"] = str(out_path)
     print(json.dumps(out))
     return 0

@@ -79,8 +79,10 @@ def _ref_task(key):
 
 
 def _job_task(job):
-    from ..runtime_report import run_job
+    from ..runtime_report import run_airflow_job, run_job
 
+    if job.airflow:
+        return run_airflow_job(job)
     return run_job(job, _STATE["scenes"][job.scene], _STATE["cfg"],
                    _STATE["refs"][(job.scene, job.blades)], _STATE["grid"])
 
@@ -130,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.scene_file import load_scene
     from ..runtime_report import (
         aggregate,
+        aggregate_airflow,
         aggregate_reversals,
         aggregate_transitions,
         default_grid,
@@ -162,7 +165,8 @@ def run(args: argparse.Namespace) -> int:
                limits=limit_notes(rows, cfg.prf_hz, cfg.tracking.slew_limit,
                                   grid.ref_rate_hz) + refusal_notes(records),
                references=ref_info, rows=rows, reversals=aggregate_reversals(records),
-               transitions=aggregate_transitions(records))
+               transitions=aggregate_transitions(records),
+               airflow=aggregate_airflow(records))
     _write(out, rep, records, plots=not args.no_plots)
     print(json.dumps(dict(out=str(out), trials=len(records), wall_s=round(wall, 1),
                           envelope=env)))
@@ -252,7 +256,8 @@ def _write(out: Path, rep: dict[str, Any], records: list[dict[str, Any]], *,
                                      encoding="utf-8")
     with open(out / "trials.jsonl", "w", encoding="utf-8") as f:
         for r in sorted(records, key=lambda r: (r["family"], r["scene"], r["blades"],
-                                                r["ratio"], r["snr_db"], r.get("window_s", 0),
+                                                r["ratio"], r["snr_db"],
+                                                r.get("window_s", r.get("seconds", 0)),
                                                 r["seed"], r.get("segment", 0))):
             f.write(json.dumps(r, sort_keys=True) + "\n")
     (out / "report.md").write_text(markdown(rep, images=images), encoding="utf-8")

@@ -124,15 +124,28 @@ class ReferenceJobs:
 # -- the jobs (run in the worker thread; pure apart from the file they write) -------------
 
 
-def learn(x: np.ndarray, cfg: Config, direction: str, path: Path) -> dict[str, Any]:
+def learn(x: np.ndarray, cfg: Config, direction: str, path: Path,
+          carried: str = "unknown") -> dict[str, Any]:
     """Fold ``x`` (a contiguous recording of the fan turning) into a reference, check it,
     keep the old file as ``.previous`` and write the new one atomically; the reference's
-    summary and its id out. Raises EstimationError when the recording shows no steady
-    rotation or too little of it (``reference.min_quality``)."""
+    summary (with the airflow measured on ``x`` and ``direction_source``) and its id out.
+
+    Its direction: ``direction`` when cw/ccw (a person chose it; a confident airflow
+    that contradicts it is a warning), else the airflow's when confident (nobody sets
+    it), else ``carried`` (what the estimates against the old reference said), else
+    unknown. Raises EstimationError when the recording shows no steady rotation or too
+    little of it (``reference.min_quality``)."""
+    from ..airflow_recording import reference_airflow
     from ..io.reference import keep_previous, write_reference
     from ..reference_build import build_reference, check_compatible
 
+    chosen = reference_airflow(x, cfg, direction if direction in ("cw", "ccw") else None)
+    direction, source = chosen.direction, chosen.source
+    if source == "none" and carried in ("cw", "ccw"):
+        direction, source = carried, "carried"
     ref = build_reference(x, cfg, direction)
+    if chosen.warnings:
+        ref.meta["warnings"] = [*ref.meta.get("warnings", []), *chosen.warnings]
     check_compatible(ref, cfg)
     q = float(ref.meta.get("quality", 0.0))
     if q < cfg.reference.min_quality:
@@ -143,6 +156,8 @@ def learn(x: np.ndarray, cfg: Config, direction: str, path: Path) -> dict[str, A
     keep_previous(path)
     digest = write_reference(ref, path)
     out = ref.summary()
+    out.update(chosen.keys)
+    out["direction_source"] = source
     out["id"] = digest[:12]
     return out
 

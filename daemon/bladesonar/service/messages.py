@@ -54,14 +54,17 @@ EVENT_KINDS = (*MOTION_EVENTS, *(f"reference_{k}" for k in REFERENCE_EVENTS))
 #: The daemon's status (state ``status``, the status topic, Home Assistant's Status):
 #: ``starting`` until the first estimate or problem; ``learning`` while it records and
 #: folds a reference of its own; ``reference_stale`` when the stored one no longer fits
-#: the room (the estimates go on, less sure).
+#: the room (the estimates go on, less sure); ``airflow_contradiction`` when the live
+#: airflow has confidently contradicted the reference's direction for a sustained time
+#: (service/airflow_watch.py; the estimates go on).
 STATUSES = ("starting", "ok", "learning", "reference_missing", "reference_invalid",
-            "reference_stale", "no_signal")
+            "reference_stale", "no_signal", "airflow_contradiction")
 #: What Home Assistant's Status shows for each status; ``ok`` with a reference whose
 #: direction is not set shows DIRECTION_UNSET instead (Rotation stays unknown until then).
 STATUS_WORDS = {"starting": "Starting", "ok": "OK", "learning": "Learning",
                 "reference_missing": "No reference", "reference_invalid": "Reference unusable",
-                "reference_stale": "Reference stale", "no_signal": "No echo"}
+                "reference_stale": "Reference stale", "no_signal": "No echo",
+                "airflow_contradiction": "Airflow contradicts reference"}
 DIRECTION_UNSET = "Direction not set"
 
 #: The settings Home Assistant can change (config entities), as ``reference.<key>``.
@@ -69,8 +72,8 @@ SETTINGS = ("auto_learn", "learn_seconds", "stale_fit")
 
 #: The state payload's keys, in order; missing estimate fields are sent as null.
 STATE_KEYS = ("direction", "rotation", "rotating", "running", "rate_hz", "rpm", "relative_rate",
-              "rate_state", "rate_change_hz_s", "confidence", "window_s", "reference",
-              "status")
+              "rate_state", "rate_change_hz_s", "confidence", "airflow", "airflow_confidence",
+              "window_s", "reference", "status")
 #: The status payload's keys, in order.
 STATUS_KEYS = ("status", "detail", "reference", "reference_direction", "reference_rate_hz",
                "fit", "learning", "settings", "since")
@@ -80,7 +83,7 @@ STATUS_KEYS = ("status", "detail", "reference", "reference_direction", "referenc
 RUNNING_HOLD_S = 60.0
 #: Statuses under which ``running`` is held: the analysis (or the learning that follows
 #: a Forget) goes on and will name the state again. Any other status makes it unknown.
-HOLD_STATUSES = ("starting", "ok", "learning")
+HOLD_STATUSES = ("starting", "ok", "learning", "airflow_contradiction")
 
 #: Significant digits kept in float payload values.
 FLOAT_DIGITS = 6
@@ -238,6 +241,8 @@ def state_payload(estimate: Estimate | Mapping[str, Any] | None, t: float | None
         out["direction"] = "unknown"
     if out["direction"] == "unknown":
         out["confidence"] = None
+    if out["airflow"] not in ("down", "up"):
+        out["airflow"] = "unknown"
     out["running"] = running
     out["status"] = status or fields.get("status") or "ok"
     if detail:
@@ -483,6 +488,12 @@ _ROTATION_TEMPLATE = ("{% set r = value_json.rotation %}"
                       "{% if r == 'cw' %}clockwise{% elif r == 'ccw' %}counterclockwise"
                       "{% elif value_json.direction == 'stopped' %}stopped"
                       "{% else %}None{% endif %}")
+#: the words Home Assistant's Airflow shows (what people ask of a ceiling fan)
+AIRFLOW_WORDS = {"down": "Down (summer)", "up": "Up (winter)"}
+_AIRFLOW_TEMPLATE = ("{% set a = value_json.airflow %}"
+                     "{% if a == 'down' %}" + AIRFLOW_WORDS["down"]
+                     + "{% elif a == 'up' %}" + AIRFLOW_WORDS["up"]
+                     + "{% else %}None{% endif %}")
 _DIRECTION_TEMPLATE = ("{% set d = value_json.direction %}"
                        "{% if d in ['same', 'reversed', 'stopped'] %}{{ d }}"
                        "{% else %}None{% endif %}")
@@ -511,6 +522,9 @@ _ENTITIES: tuple[tuple[str, str, str, dict[str, Any]], ...] = (
         "name": "Rotation", "device_class": "enum",
         "options": ["clockwise", "counterclockwise", "stopped"],
         "value_template": _ROTATION_TEMPLATE, "icon": "mdi:rotate-3d-variant"}),
+    ("sensor", "airflow", "state", {
+        "name": "Airflow", "device_class": "enum", "options": list(AIRFLOW_WORDS.values()),
+        "value_template": _AIRFLOW_TEMPLATE, "icon": "mdi:weather-windy"}),
     ("sensor", "rpm", "state", {
         "name": "Speed", "unit_of_measurement": "rpm", "state_class": "measurement",
         "suggested_display_precision": 0,

@@ -26,6 +26,7 @@ from ..io.config_file import load_config
 from ..live import Estimate, LiveAnalyzer
 from ..reference_fit import FitWatch
 from . import learner, memory, settings_store
+from .airflow_watch import AirflowWatch, Contradiction
 from .audio import AudioIO, PulseBlock
 from .messages import Command, utc_iso
 from .notify import Notifier, NullNotifier
@@ -189,6 +190,11 @@ class Service:
         self._job_direction = "unknown"
         self.fit: FitWatch | None = None
         self._next_fit = 0.0
+        #: the live airflow (its own worker: a learn job must not hold it up, nor it one)
+        self.airflow = AirflowWatch(cfg)
+        self.airflow_jobs = learner.ReferenceJobs()
+        #: the rotation the fingerprint published when the airflow window was taken
+        self._airflow_fp_rotation: str | None = None
         #: the motion meter's verdict at the last fit sample (the fan moves)
         self._moving = False
         self._stale_reported = False
@@ -263,6 +269,7 @@ class Service:
                     self._reload.clear()
                     self._do_reload()
                 self._take_job_results()
+                self._take_airflow()
                 self._take_commands()
                 if self.analyzer is not None and now >= self._next_reference_check \
                         and not self.jobs.busy:
@@ -300,6 +307,9 @@ class Service:
                         last_pulse_t = now
                     continue
                 last_pulse_t = now
+                for block in blocks:
+                    self.airflow.add(block.samples, block.start_sample, block.discontinuity)
+                self._maybe_measure_airflow()
                 for block in blocks:
                     if self._rec is None:        # done (or given up) within the batch
                         break
@@ -351,7 +361,7 @@ class Service:
                         estimate = Estimate.unknown(
                             f"the reference no longer fits the room: {detail}",
                             reference=estimate.reference)
-                    self.publisher.publish_state(estimate, status=status,
+                    self.publisher.publish_state(self._with_airflow(estimate), status=status,
                                                  detail=None if status == "ok" else detail)
                     self._publish_status()    # with the state (on change only)
                     done_at = blocks[-1].captured_at     # the period that completed it
@@ -367,6 +377,7 @@ class Service:
             self.notifier.stopping()
             self._close_audio()
             self.jobs.close()
+            self.airflow_jobs.close()
             if self.publisher is not None:
                 try:
                     self.publisher.publish_stats(self.stats(self.clock() - t_start))
@@ -402,12 +413,59 @@ class Service:
         return fired
 
     def _publish_unknown(self) -> None:
-        """The state while nothing can be estimated (no reference, no signal)."""
+        """The state while nothing can be estimated (no reference, no signal). Before a
+        reference exists (learning) the airflow window gives what it can: the airflow,
+        the rotation it means and the rate from the blade period."""
         assert self.publisher is not None
         status, detail = self._status()
         ref_id = self.reference.meta.get("id") if self.reference is not None else None
-        self.publisher.publish_state(Estimate.unknown(detail or status, reference=ref_id),
-                                     status=status, detail=detail)
+        fields = self._with_airflow(Estimate.unknown(detail or status, reference=ref_id))
+        f = self.airflow.current()
+        if self.reference is None and self._signal_problem_text is None and f is not None \
+                and f.rate_hz is not None:
+            fields.update(rotating=True, rotation=f.rotation, rate_hz=round(f.rate_hz, 5),
+                          rpm=round(60.0 * f.rate_hz, 3),
+                          reason=(f"no reference yet: the rate from the blade period, "
+                                  f"the rotation from the airflow ({f.airflow.reason})"))
+        self.publisher.publish_state(fields, status=status, detail=detail)
+
+    def _with_airflow(self, est: Estimate) -> dict[str, Any]:
+        """The estimate's state fields with the live airflow's."""
+        out = dict(est.fields())
+        out.update(self.airflow.fields())
+        return out
+
+    def _maybe_measure_airflow(self) -> None:
+        """Submit the airflow window when due (its own worker thread)."""
+        learning = self.reference is None
+        x = self.airflow.due()
+        if x is None or self.airflow_jobs.busy:
+            return
+        from ..airflow_recording import window_figures
+
+        cfg = self.cfg           # as it is now: a reload must not change a job under way
+
+        def job() -> Any:
+            return window_figures(x, cfg, rate=learning)
+
+        if self.airflow_jobs.submit("airflow", job):
+            self.airflow.submitted(learning)
+            st = self._last_state
+            self._airflow_fp_rotation = st.rotation if st is not None else None
+
+    def _take_airflow(self) -> None:
+        for res in self.airflow_jobs.poll():
+            was = self.airflow.contradiction.active
+            self.airflow.took(res.value if res.ok else None, res.error,
+                              self._airflow_fp_rotation if self.reference is not None
+                              else None)
+            f = self.airflow.current()
+            log.debug("airflow %s", f.airflow if f is not None else res.error)
+            now = self.airflow.contradiction.active
+            if now and not was:
+                log.warning("%s", self._status()[1])
+            elif was and not now:
+                log.info("the live airflow no longer contradicts the reference's direction")
 
     def _signal_problem(self, problem: str) -> None:
         """The capture holds no usable pulse train: say so once, reopen the audio later."""
@@ -479,6 +537,7 @@ class Service:
         self.fit = FitWatch(q, stale_fit=r.stale_fit, span_s=r.stale_after_s) if q > 0 \
             else None
         self._stale_reported = False
+        self.airflow.contradiction = Contradiction()     # judged against this one afresh
         if self._pending_direction is not None \
                 and ref.meta.get("direction") == self._pending_direction:
             self._pending_direction = None
@@ -537,6 +596,9 @@ class Service:
                 f"{self.fit.moving_s:.0f} s of turning (stale below "
                 f"{self.cfg.reference.stale_fit:g}): the device, the fan or the room changed; "
                 "learn a new reference")
+        contra = self.airflow.contradiction_detail(self.reference.meta.get("direction"))
+        if contra is not None:
+            return "airflow_contradiction", contra
         if self._last_state is None and not self._ready_sent \
                 and not self.counters.references_learned:
             return "starting", None
@@ -617,11 +679,13 @@ class Service:
             return
         ref_known = self.reference is not None and \
             self.reference.meta.get("direction") in ("cw", "ccw")
-        direction = self._pending_direction or rec.direction(ref_known)
+        # a direction a person chose wins; else the airflow measured on the recording
+        # (learner.learn), else what the estimates against the old reference said
+        direction = self._pending_direction or "unknown"
         x = rec.samples()
         self._rec = None
         if not self.jobs.submit("learn", learner.learn, x, self.cfg, direction,
-                                self.cfg.reference_path):
+                                self.cfg.reference_path, rec.direction(ref_known)):
             log.warning("a reference job is running; the recording is dropped")
             return
         self._learn_why = rec.why
@@ -680,6 +744,7 @@ class Service:
                     # once (its reference is this object), no re-alignment
                     self.reference.meta["direction"] = d
                     self.reference.meta["id"] = str(res.value)[:12]
+                    self.airflow.contradiction = Contradiction()
                     if self.analyzer is not None:
                         self.analyzer.reference_id = self.reference.meta["id"]
                     self._reference_sig = self._reference_signature()
@@ -757,6 +822,8 @@ class Service:
             self.publisher.publish_event(
                 "reference_learned", reference=info.get("id"), rate_hz=info.get("rate_hz"),
                 quality=info.get("quality"), direction=info.get("direction"), source=why,
+                direction_source=info.get("direction_source"),
+                airflow=info.get("airflow"), airflow_confidence=info.get("airflow_confidence"),
                 warnings=info.get("warnings") or [])
             # read back what was written, new analyzer, re-align; at once, so that no
             # status lies between learning and the new reference
@@ -811,6 +878,8 @@ class Service:
             new, settings_store.load(settings_store.path_for(new)))
         self._settings_path = settings_store.path_for(new)
         old, self.cfg = self.cfg, new
+        if (old.audio, old.waveform, old.scene) != (new.audio, new.waveform, new.scene):
+            self.airflow = AirflowWatch(new)     # another pulse train or fan: start afresh
         if (old.audio, old.waveform, old.sim) != (new.audio, new.waveform, new.sim):
             self._close_audio()
         if old.mqtt != new.mqtt or old.device_id != new.device_id:

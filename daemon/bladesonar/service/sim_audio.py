@@ -48,12 +48,12 @@ class SimAudio:
         self.ring_overflows = 0
 
     def start(self) -> None:
-        from ..io.scene_file import load_scene
+        from ..io.scene_file import load_any_scene
         from ..sim.render import Simulator
 
         c = self.cfg
         try:
-            self._scene = load_scene(c.path(c.sim.scene))
+            self._scene = load_any_scene(c.path(c.sim.scene))   # 2-D or 3-D
         except ConfigError as exc:
             if exc.key != "--scene":
                 raise
