@@ -12,6 +12,7 @@ import pytest
 from bladesonar import config
 from bladesonar.errors import AudioDeviceError
 from bladesonar.service import sound_server
+from bladesonar.service.alsa_audio import AlsaAudio
 from bladesonar.service.backends import audio_choice, choose_backend, open_audio
 from bladesonar.service.pipewire_audio import (
     STREAM_PROPS,
@@ -93,7 +94,7 @@ def test_what_was_found_and_chosen_goes_with_the_audio_path(tmp_path, monkeypatc
         assert audio_choice(alsa) == {"backend": "alsa", "server": "pipewire",
                                       "chosen": "alsa", "path": "alsa"}
         audio = open_audio(alsa)                       # not started: no device is opened
-        assert audio.choice == audio_choice(alsa)
+        assert isinstance(audio, AlsaAudio) and audio.choice == audio_choice(alsa)
         assert audio.stats()["sound_server"] == {"server": "pipewire", "path": "alsa",
                                                  "backend": "alsa"}
     finally:
