@@ -12,7 +12,8 @@ import pytest
 from bladesonar import config
 from bladesonar.errors import AudioDeviceError
 from bladesonar.service import sound_server
-from bladesonar.service.backends import choose_backend
+from bladesonar.service.alsa_audio import AlsaAudio
+from bladesonar.service.backends import audio_choice, choose_backend, open_audio
 from bladesonar.service.pipewire_audio import (
     STREAM_PROPS,
     StreamLatency,
@@ -72,6 +73,35 @@ def test_auto_refuses_pulseaudio_with_the_fix_and_picks_alsa_without_a_server(
     finally:
         s.close()
     assert choose_backend(config.from_mapping({"audio": {"backend": "alsa"}})) == "alsa"
+
+
+def test_what_was_found_and_chosen_goes_with_the_audio_path(tmp_path, monkeypatch):
+    """The status topic and stats show it (runner: the path's ``choice``); real sockets."""
+    run = tmp_path / "run"
+    run.mkdir()
+    for k in ("PIPEWIRE_REMOTE", "PIPEWIRE_RUNTIME_DIR", "PULSE_SERVER", "PULSE_RUNTIME_PATH"):
+        monkeypatch.delenv(k, raising=False)
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(run))
+    auto = config.from_mapping({"audio": {"backend": "auto"}})
+    assert audio_choice(auto) == {"backend": "auto", "server": "none", "chosen": "alsa",
+                                  "path": "alsa"}
+    pw = listen(run / "pipewire-0")
+    try:
+        assert audio_choice(auto) == {"backend": "auto", "server": "pipewire",
+                                      "chosen": "pipewire", "path": "pipewire-alsa"}
+        # named in the config: used as named, with the server that answers beside it
+        alsa = config.from_mapping({"audio": {"backend": "alsa"}})
+        assert audio_choice(alsa) == {"backend": "alsa", "server": "pipewire",
+                                      "chosen": "alsa", "path": "alsa"}
+        audio = open_audio(alsa)                       # not started: no device is opened
+        assert isinstance(audio, AlsaAudio) and audio.choice == audio_choice(alsa)
+        assert audio.stats()["sound_server"] == {"server": "pipewire", "path": "alsa",
+                                                 "backend": "alsa"}
+    finally:
+        pw.close()
+    sim = config.from_mapping({"audio": {"backend": "sim"}})
+    assert audio_choice(sim) == {"backend": "sim", "server": None, "chosen": "sim",
+                                 "path": "sim"}
 
 
 def test_node_names_become_plugin_pcm_names_and_odd_ones_are_refused():

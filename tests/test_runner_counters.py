@@ -110,6 +110,10 @@ def test_audio_counters_accumulate_across_a_reopen(tmp_path):
     assert final["xruns"] == 0
     # and the fan was tracked after the reopen (ccw = same as the reference)
     assert pubs[-1].states[-1]["direction"] == "same"
+    # the status says what audio path was found and chosen (none before it opened)
+    assert pubs[-1].statuses[0]["audio"] is None
+    assert pubs[-1].statuses[-1]["audio"] == {"backend": "sim", "server": None,
+                                              "chosen": "sim", "path": "sim"}
 
 
 def test_reloads_that_change_nothing_the_analysis_uses_keep_tracking(tmp_path):

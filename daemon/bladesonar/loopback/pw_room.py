@@ -17,6 +17,7 @@ next session: a reference, then the daemon), or after the graph stalled for as l
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import shutil
@@ -79,6 +80,7 @@ class PwRoom(Room):
         self.sessions = 0
         self.reconnects = 0
         self._underruns = 0
+        self._in_session = False
 
     # -- the graph side ------------------------------------------------------------------
 
@@ -160,7 +162,7 @@ class PwRoom(Room):
     def _write(self, n: int) -> None:
         x = self._acc[:n]
         if self.noise_sigma > 0:
-            x = x + self.noise_sigma * self._rng.standard_normal(n)
+            x = x + self._noise(self._acc_start, n)
         got = self._play.write(encode(x, self.fmt))
         if got < 0:
             self._underruns += 1
@@ -186,12 +188,22 @@ class PwRoom(Room):
                 if should_stop():
                     break
                 log.warning("room lost the graph (%s); reconnecting", exc)
+                self._truth_session_end()
                 self.close()
                 self.reconnects += 1
                 time.sleep(0.5)
                 self.open()
         self.stats.ended_by = self.stats.ended_by or "stopped"
         return self.stats
+
+    def _truth_session_end(self) -> None:
+        """A truth line when a session ends: a test starts the next daemon only after it
+        (a daemon started sooner, while the room still waited out the gap, was taken for
+        the last one's session going on, on the last one's schedule)."""
+        if self.truth is not None and self._in_session:
+            self.truth.write(json.dumps({"session_ended_at": time.time()}) + "\n")
+            self.truth.flush()
+        self._in_session = False
 
     @staticmethod
     def _alsa_error() -> type[Exception]:
@@ -222,6 +234,7 @@ class PwRoom(Room):
                 # session, as after silence
                 active, block = False, np.zeros(0)
                 log.info("session %d ended (the graph stalled)", self.sessions)
+                self._truth_session_end()
             if n < 0:
                 if n != -32:
                     raise AudioDeviceError(f"room capture failed with error {n}")
@@ -237,15 +250,18 @@ class PwRoom(Room):
             if not active and len(loud):
                 active, k, self.sessions = True, 0, self.sessions + 1
                 block, block_at = x[loud[0]:], pos + int(loud[0])   # pulse 0: schedule t=0
+                self._noise_origin = block_at + self.prime + self.latency
                 self._t0 = time.monotonic()
                 log.info("session %d: the daemon plays", self.sessions)
                 self._truth_session((self.prime + self.latency) / self.fs)
+                self._in_session = True
             elif active:
                 block = np.concatenate([block, x])
             silent = silent + len(x) if not len(loud) else len(x) - 1 - int(loud[-1])
             if active and silent > gap:
                 active, block = False, np.zeros(0)
                 log.info("session %d ended (silence)", self.sessions)
+                self._truth_session_end()
             while len(block) >= pri:
                 self._answer(k, block[:pri], at_sample=block_at + self.prime + self.latency)
                 self.stats.periods_played += 1

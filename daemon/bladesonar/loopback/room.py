@@ -116,8 +116,11 @@ class Room:
                               f"{buffer}): the capture needs that much silence before the "
                               "first echo")
         self.latency = int(latency_samples)
+        #: capture position of the answer to pulse 0 (the PipeWire room's: per session):
+        #: the noise is a function of the position from there (``_noise``)
+        self._noise_origin = self.latency
         self.noise_sigma = float(noise_sigma)
-        self._rng = np.random.default_rng([int(seed), 0x100])
+        self.seed = int(seed)
         self.truth = truth
         self.ir_samples = int(ir_samples) if ir_samples else 2 * self.pri
         self._fd_play: int | None = None
@@ -240,6 +243,19 @@ class Room:
         self.stats.seconds = time.monotonic() - (self._t0 or t_open)
         return self.stats
 
+    def _noise(self, start: int, n: int) -> np.ndarray:
+        """The capture's white noise at positions [start, start + n), drawn per PRI
+        counted from the answer to the session's pulse 0 (``_noise_origin``): pulse k of
+        every session gets the same noise in every room (FIFO or PipeWire, whatever the
+        latency and the write sizes), so two paths can be compared on the same data
+        (the reversal's detection delay moves by 0.7 s between noise draws)."""
+        pri, origin = self.pri, self._noise_origin
+        first, last = (start - origin) // pri, (start + n - 1 - origin) // pri
+        draws = [np.random.default_rng([self.seed, 0x100, (1 << 40) + b]).standard_normal(pri)
+                 for b in range(first, last + 1)]
+        a = start - origin - first * pri
+        return self.noise_sigma * np.concatenate(draws)[a:a + n]
+
     def _truth_session(self, answer_delay_s: float) -> None:
         """A truth line for a session's start: when its pulse 0 reached the room (wall
         clock), and how much later the room's answer to a block enters the capture."""
@@ -280,7 +296,7 @@ class Room:
         while self._acc_start + u <= upto:
             x = self._acc[:u]
             if self.noise_sigma > 0:
-                x = x + self.noise_sigma * self._rng.standard_normal(u)
+                x = x + self._noise(self._acc_start, u)
             data = encode(x, self.fmt)
             if pace and self._t0 is not None:
                 # period j is complete when its last sample has been "recorded"

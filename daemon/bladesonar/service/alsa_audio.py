@@ -94,6 +94,8 @@ class AlsaAudio:
         self.periods_written = 0
         self.periods_read = 0
         self.samples_written = 0
+        #: what was found and chosen (backends.audio_choice; empty when built directly)
+        self.choice: dict[str, Any] = {}
 
     # -- opening -------------------------------------------------------------------------
 
@@ -241,10 +243,15 @@ class AlsaAudio:
         return [self._decoder(raw) for raw in self._ring.get_batch(n, timeout)]
 
     def stats(self) -> dict[str, Any]:
-        return {"xruns_playback": self.xruns_playback, "xruns_capture": self.xruns_capture,
-                "ring_overflows": self._ring.overflows, "periods_written": self.periods_written,
-                "periods_read": self.periods_read, "periods_delivered": self._decoder.delivered,
-                "failed": int(self.failure is not None)}
+        st: dict[str, Any] = {
+            "xruns_playback": self.xruns_playback, "xruns_capture": self.xruns_capture,
+            "ring_overflows": self._ring.overflows, "periods_written": self.periods_written,
+            "periods_read": self.periods_read, "periods_delivered": self._decoder.delivered,
+            "failed": int(self.failure is not None)}
+        if self.choice:
+            st["sound_server"] = {"server": self.choice.get("server"), "path": "alsa",
+                                  "backend": self.choice.get("backend")}
+        return st
 
     def stop(self, timeout: float = 2.0) -> None:
         """Join the threads and close the PCMs. Playback is closed first: with the FIFO

@@ -12,32 +12,57 @@ from .audio import AudioIO
 log = logging.getLogger(__name__)
 
 
-def choose_backend(cfg: Any) -> str:
-    """``cfg.audio.backend``, with ``auto`` resolved from the sound server found: PipeWire
-    if one answers, ALSA if none does; a PulseAudio server is refused (docs/audio.md)."""
+#: The audio path each backend takes, as ``stats`` and the status topic name it.
+PATHS = {"alsa": "alsa", "pipewire": "pipewire-alsa", "sim": "sim"}
+
+
+def audio_choice(cfg: Any) -> dict[str, Any]:
+    """What was found and chosen: ``backend`` (the config's ``audio.backend``),
+    ``server`` (the sound server that answers: ``pipewire``, ``pulseaudio``, ``none``;
+    null for the simulator, which looks for none) and ``chosen`` (the backend used:
+    ``auto`` resolved to PipeWire if one answers, ALSA if none does; a PulseAudio server
+    is refused, docs/audio.md) with its ``path``."""
     backend = str(cfg.audio.backend)
-    if backend != "auto":
-        return backend
+    if backend == "sim":
+        return {"backend": backend, "server": None, "chosen": "sim", "path": PATHS["sim"]}
     from . import sound_server
     found = sound_server.detect()
-    if found.kind == "pulseaudio":
-        raise AudioDeviceError("audio.backend auto: " + sound_server.pulseaudio_refusal(found))
-    chosen = "pipewire" if found.kind == "pipewire" else "alsa"
-    log.info("sound server: %s; audio path: %s", found.describe(), chosen)
-    return chosen
+    chosen = backend
+    if backend == "auto":
+        if found.kind == "pulseaudio":
+            raise AudioDeviceError("audio.backend auto: "
+                                   + sound_server.pulseaudio_refusal(found))
+        chosen = "pipewire" if found.kind == "pipewire" else "alsa"
+    log.info("sound server: %s; audio.backend %s: audio path %s", found.describe(), backend,
+             PATHS.get(chosen, chosen))
+    return {"backend": backend, "server": found.kind, "chosen": chosen,
+            "path": PATHS.get(chosen)}
+
+
+def choose_backend(cfg: Any) -> str:
+    """``cfg.audio.backend``, with ``auto`` resolved (:func:`audio_choice`)."""
+    return str(audio_choice(cfg)["chosen"])
 
 
 def open_audio(cfg: Any) -> AudioIO:
-    """The audio path ``cfg.audio.backend`` names (not started)."""
-    backend = choose_backend(cfg)
+    """The audio path ``cfg.audio.backend`` names (not started); its ``choice`` says what
+    was found and chosen (:func:`audio_choice`: the status topic and ``stats`` show it)."""
+    choice = audio_choice(cfg)
+    backend = choice["chosen"]
+    audio: Any
     if backend == "sim":
         from .sim_audio import SimAudio
-        return SimAudio(cfg)
-    if backend == "alsa":
+        audio = SimAudio(cfg)
+    elif backend == "alsa":
         from .alsa_audio import AlsaAudio
-        return AlsaAudio(cfg)
-    if backend == "pipewire":
+        audio = AlsaAudio(cfg)
+    elif backend == "pipewire":
         from .pipewire_audio import PipeWireAudio
-        return PipeWireAudio(cfg)
+        audio = PipeWireAudio(cfg)
+    else:
+        audio = None
+    if audio is not None:
+        audio.choice = choice
+        return audio
     raise AudioDeviceError(f"audio.backend {cfg.audio.backend!r}: use alsa, pipewire, auto "
                            "or sim")

@@ -76,7 +76,7 @@ STATE_KEYS = ("direction", "rotation", "rotating", "running", "rate_hz", "rpm", 
               "window_s", "reference", "status")
 #: The status payload's keys, in order.
 STATUS_KEYS = ("status", "detail", "reference", "reference_direction", "reference_rate_hz",
-               "fit", "learning", "settings", "since")
+               "fit", "learning", "settings", "audio", "since")
 
 #: How long ``running`` keeps its last known value through answers that are not known
 #: (a reversal's or a stop's confirmation, a relearned reference), seconds.

@@ -283,6 +283,7 @@ class PipeWireAudio(AlsaAudio):
         st["sound_server"] = {
             "server": self.server.kind if self.server else None,
             "path": "pipewire-alsa",
+            "backend": self.choice.get("backend", "pipewire"),
             "version": g.get("version"),
             "graph_rate": sound_server.graph_rate(g) if g else None,
             "quantum": g.get("force_quantum") or g.get("quantum"),

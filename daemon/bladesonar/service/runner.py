@@ -151,6 +151,7 @@ class Service:
         #: audio counters of device sessions already closed (reopen, reload), so the
         #: published totals never go backwards
         self._audio_closed: dict[str, int] = {}
+        self._audio_choice: dict[str, Any] | None = None
         self._stop = threading.Event()
         self._reload = threading.Event()
         #: set by the signal handlers (plain stores, no locks: see install_signal_handlers)
@@ -550,6 +551,9 @@ class Service:
         if self.reference is not None:
             self.analyzer = self.analyzer_factory(self.cfg, self.reference)
         self.audio = self.audio_factory(self.cfg)
+        # what was found and chosen (backends.audio_choice), for the status topic; kept
+        # while the path is closed
+        self._audio_choice = getattr(self.audio, "choice", None) or self._audio_choice
         self.audio.start()
 
     def _close_audio(self) -> None:
@@ -621,6 +625,7 @@ class Service:
             "learning": (self._rec.why if self._rec is not None else
                          self._learn_why if self.jobs.busy == "learn" else None),
             "settings": settings_store.current(self.cfg),
+            "audio": self._audio_choice,
         }
         last = self._status_sent
         if last is not None:
