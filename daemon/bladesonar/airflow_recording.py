@@ -19,13 +19,16 @@ import numpy as np
 from .dsp import airflow as af
 from .dsp import fingerprint as fp
 from .dsp.gate import Gate, make_gate
-from .dsp.pulses import AlignedPulses, align
+from .dsp.pulses import AlignedPulses, PulseAligner
 from .errors import EstimationError, InputError
 
 #: Where the gate opens when the config leaves it open, m.
 AIRFLOW_GATE_START_M = 0.3
 #: First pulses left out: the reverberation of earlier pulses has not built up in them.
 WARMUP_PULSES = 20
+#: Samples fed to the aligner at a time (the same pulses as all at once, without the
+#: aligner's whole-recording temporaries: 23 MiB of them for 2^20 samples).
+ALIGN_CHUNK = 1 << 16
 
 
 def _gate(cfg: Any) -> Gate:
@@ -39,8 +42,12 @@ def _gate(cfg: Any) -> Gate:
 
 
 def _aligned(x: np.ndarray, cfg: Any) -> AlignedPulses:
-    return align(np.asarray(x, dtype=np.float64), int(cfg.waveform.pri_samples), _gate(cfg),
-                 warmup=WARMUP_PULSES)
+    g = _gate(cfg)
+    a = PulseAligner(int(cfg.waveform.pri_samples), g, warmup=WARMUP_PULSES)
+    x = np.asarray(x)
+    parts = [a.push(x[i:i + ALIGN_CHUNK]) for i in range(0, max(len(x), 1), ALIGN_CHUNK)]
+    parts.append(a.flush())
+    return AlignedPulses.concat(parts, g.length)
 
 
 def recording_airflow(x: np.ndarray, cfg: Any) -> af.Airflow:

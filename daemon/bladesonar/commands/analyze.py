@@ -96,16 +96,17 @@ def _with_reference(args: argparse.Namespace, cfg: Any) -> int:
     from ..offline import analyze
 
     ref = load_reference(args.reference)
-    head: list[Any] = []
+    head = np.empty(0 if args.track else AIRFLOW_SAMPLES)     # --track prints no airflow
     kept = 0
 
     def tee(blocks: Iterator[Any]) -> Iterator[Any]:
         # the airflow stage reads the first AIRFLOW_SAMPLES of what analyze streams
         nonlocal kept
         for b in blocks:
-            if kept < AIRFLOW_SAMPLES:
-                head.append(np.array(b[:AIRFLOW_SAMPLES - kept], dtype=np.float64))
-                kept += len(head[-1])
+            m = min(len(b), len(head) - kept)
+            if m > 0:
+                head[kept:kept + m] = b[:m]
+                kept += m
             yield b
 
     # read in blocks: memory independent of the recording's length (rows aside)
@@ -116,6 +117,5 @@ def _with_reference(args: argparse.Namespace, cfg: Any) -> int:
         for row in rows:
             out.write(json.dumps(row) + "\n")
     else:
-        x = np.concatenate(head) if head else np.zeros(0)
-        print(json.dumps({**summary, **_airflow(x, cfg, quiet_errors=True)}))
+        print(json.dumps({**summary, **_airflow(head[:kept], cfg, quiet_errors=True)}))
     return 0

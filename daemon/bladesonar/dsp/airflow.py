@@ -62,6 +62,9 @@ FIT_SHIFT = 46.0
 MAX_SHIFT = 48
 #: Pulses per block of the noise estimate (about 0.5 s).
 BLOCK = 16
+#: Pulses whose spectra are held at once (a multiple of BLOCK, so that each block's sums
+#: are added in the same order as over the whole recording: the same bits).
+ROWS = 8 * BLOCK
 #: Fewest blocks (of valid pulse pairs) that are called at all: about 4 s at 34 Hz.
 MIN_BLOCKS = 8
 #: Random halves of the blocks the standard error comes from (fixed seed: the same
@@ -104,6 +107,11 @@ class Airflow:
                     airflow_lags=self.lags, airflow_reason=self.reason)
 
 
+def _row_blocks(n: int) -> list[tuple[int, int]]:
+    """Row ranges of ``ROWS`` pulses covering ``n`` rows."""
+    return [(a, min(n, a + ROWS)) for a in range(0, n, ROWS)]
+
+
 def two_sided_mean(x: np.ndarray, keep: np.ndarray, alpha: float) -> np.ndarray:
     """The mean of forward and backward exponential averages (weight ``alpha`` per row)
     of the rows of ``x`` where ``keep``; rows not kept do not enter the averages. Each
@@ -131,33 +139,47 @@ def moving_part(pulses: np.ndarray, valid: np.ndarray, prf: float
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Step 1: the pulses less the static room (two-sided), less each pulse's fit by the
     static mean and its derivative. Returns (residuals, usable, the static room's mean
-    pulse) with bursts not usable."""
-    x = band_limited(np.asarray(pulses, dtype=np.float64), BAND)
+    pulse) with bursts not usable. Row by row work runs in blocks of ``ROWS`` pulses and
+    the residuals overwrite the band-limited copy: two (n, L) arrays at a time."""
+    pulses = np.asarray(pulses, dtype=np.float64)
+    n, L = pulses.shape
+    x = np.empty((n, L))
+    for a, b in _row_blocks(n):
+        x[a:b] = band_limited(pulses[a:b], BAND)
     ok = np.asarray(valid, bool).copy()
     alpha = min(1.0, 1.0 / (STATIC_S * prf))
     static = two_sided_mean(x, ok, alpha)
-    res = x - static
-    energy = np.where(ok, np.mean(res * res, axis=1), 0.0)
-    burst = np.zeros(len(x), bool)
+    energy = np.zeros(n)
+    for a, b in _row_blocks(n):
+        r = x[a:b] - static[a:b]
+        energy[a:b] = np.where(ok[a:b], np.mean(r * r, axis=1), 0.0)
+    burst = np.zeros(n, bool)
     burst[ok] = dev.burst_mask(energy[ok])
     if burst.any():            # again without the bursts in the static estimate
         ok &= ~burst
         static = two_sided_mean(x, ok, alpha)
-        res = x - static
-    d_static = np.gradient(static, axis=1)
-    for i in np.nonzero(ok)[0]:
-        basis = np.stack([static[i], d_static[i]], axis=1)
-        coef, *_ = np.linalg.lstsq(basis, res[i], rcond=None)
-        res[i] -= basis @ coef
+    res = x                    # x is not needed past here
+    res -= static
+    for a, b in _row_blocks(n):
+        d_static = np.gradient(static[a:b], axis=1)
+        for i in np.nonzero(ok[a:b])[0]:
+            basis = np.stack([static[a + i], d_static[i]], axis=1)
+            coef, *_ = np.linalg.lstsq(basis, res[a + i], rcond=None)
+            res[a + i] -= basis @ coef
     res[~ok] = 0.0
-    return res, ok, static[ok].mean(axis=0) if ok.any() else np.zeros(x.shape[1])
+    return res, ok, static[ok].mean(axis=0) if ok.any() else np.zeros(L)
 
 
 def envelope_image(res: np.ndarray, ok: np.ndarray, static: np.ndarray, prf: float
                    ) -> np.ndarray:
     """Step 2: the residuals' envelopes, weighted down where the static room is strong,
-    less their own two-sided mean; rows not usable are zero."""
-    env = envelope_features(res, np.zeros(res.shape[1]))
+    less their own two-sided mean; rows not usable are zero. The envelopes (complex
+    analytic signals) are taken ``ROWS`` pulses at a time."""
+    n, L = res.shape
+    env = np.empty((n, L))
+    zero = np.zeros(L)
+    for a, b in _row_blocks(n):
+        env[a:b] = envelope_features(res[a:b], zero)
     env[~ok] = 0.0
     if ok.any():
         moving = float(np.median(np.sqrt(np.mean(env[ok] ** 2, axis=0))))
@@ -166,7 +188,8 @@ def envelope_image(res: np.ndarray, ok: np.ndarray, static: np.ndarray, prf: flo
         if moving > 0:
             env *= 1.0 / (1.0 + (s_env / (STATIC_WEIGHT * moving)) ** 2)[None, :]
     alpha = min(1.0, 1.0 / (ENVELOPE_S * prf))
-    d: np.ndarray = env - two_sided_mean(env, ok, alpha)
+    d = two_sided_mean(env, ok, alpha)
+    np.subtract(env, d, out=d)
     d[~ok] = 0.0
     return d
 
@@ -176,19 +199,32 @@ def block_correlations(d: np.ndarray, ok: np.ndarray, lag: int) -> np.ndarray:
     later, shifts -MAX_SHIFT..MAX_SHIFT, summed over blocks of ``BLOCK`` pulses:
     (blocks, 2 MAX_SHIFT + 1); shift s > 0 means the later pulse's echoes lie further
     out."""
+    return lag_correlations(d, ok, [lag])[0]
+
+
+def lag_correlations(d: np.ndarray, ok: np.ndarray, lags: list[int]) -> list[np.ndarray]:
+    """:func:`block_correlations` at each of ``lags``, the spectra shared by the lags and
+    taken ``ROWS`` pulses at a time (whole, the spectra and products of 800 pulses took
+    100 MiB)."""
     n, L = d.shape
     nb = max(1, -(-n // BLOCK))
-    out = np.zeros((nb, 2 * MAX_SHIFT + 1))
-    if lag >= n:
-        return out
+    outs = [np.zeros((nb, 2 * MAX_SHIFT + 1)) for _ in lags]
+    todo = [(out, lag) for out, lag in zip(outs, lags) if lag < n]
+    if not todo:
+        return outs
+    longest = max(lag for _, lag in todo)
     nfft = 1 << int(math.ceil(math.log2(2 * L)))
-    F = np.fft.rfft(d, n=nfft, axis=1)
-    cc = np.fft.irfft(np.conj(F[:-lag]) * F[lag:], n=nfft, axis=1)
-    cc = np.concatenate([cc[:, -MAX_SHIFT:], cc[:, :MAX_SHIFT + 1]], axis=1)
-    both = ok[:-lag] & ok[lag:]
-    k = np.nonzero(both)[0]
-    np.add.at(out, k // BLOCK, cc[k])
-    return out
+    for a, b in _row_blocks(n):
+        F = np.fft.rfft(d[a:min(n, b + longest)], n=nfft, axis=1)
+        for out, lag in todo:
+            # pairs (i, i + lag) with both usable, i in [a, b)
+            k = a + np.nonzero(ok[a:min(b, n - lag)] & ok[a + lag:min(b + lag, n)])[0]
+            if len(k) == 0:
+                continue
+            cc = np.fft.irfft(np.conj(F[k - a]) * F[k - a + lag], n=nfft, axis=1)
+            cc = np.concatenate([cc[:, -MAX_SHIFT:], cc[:, :MAX_SHIFT + 1]], axis=1)
+            np.add.at(out, k // BLOCK, cc)
+    return outs
 
 
 def peak_shift(c: np.ndarray, near: float | None = None, half: float = 0.0) -> float:
@@ -283,6 +319,7 @@ def measure(pulses: np.ndarray, valid: np.ndarray, prf: float) -> Airflow:
                        "too short: fewer than 2 usable pulses")
     res, ok, static = moving_part(x, ok, prf)
     d = envelope_image(res, ok, static, prf)
+    del res
     first = block_correlations(d, ok, 1)
     speed = abs(peak_shift(first.sum(axis=0)))
     lags = int(min(MAX_LAG, max(1, SPAN // max(speed, 0.5))))
@@ -292,5 +329,5 @@ def measure(pulses: np.ndarray, valid: np.ndarray, prf: float) -> Airflow:
         return Airflow("unknown", 0.0, 0.0, speed, int(np.count_nonzero(ok)),
                        f"the strongest moving echoes shift {speed:.1f} samples per pulse, "
                        "too fast to be confirmed at a second lag", 1)
-    per_lag = [first] + [block_correlations(d, ok, lag) for lag in range(2, lags + 1)]
+    per_lag = [first] + lag_correlations(d, ok, list(range(2, lags + 1)))
     return decide(per_lag, int(np.count_nonzero(ok)))
