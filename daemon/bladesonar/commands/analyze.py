@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Iterator
 from typing import Any
 
 EPILOG = """\
@@ -89,33 +88,39 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _with_reference(args: argparse.Namespace, cfg: Any) -> int:
-    import numpy as np
-
     from ..io.reference import load_reference
     from ..io.wav import stream_wav
     from ..offline import analyze
 
     ref = load_reference(args.reference)
-    head = np.empty(0 if args.track else AIRFLOW_SAMPLES)     # --track prints no airflow
-    kept = 0
-
-    def tee(blocks: Iterator[Any]) -> Iterator[Any]:
-        # the airflow stage reads the first AIRFLOW_SAMPLES of what analyze streams
-        nonlocal kept
-        for b in blocks:
-            m = min(len(b), len(head) - kept)
-            if m > 0:
-                head[kept:kept + m] = b[:m]
-                kept += m
-            yield b
-
     # read in blocks: memory independent of the recording's length (rows aside)
     with stream_wav(args.wav, expect_rate=cfg.audio.sample_rate) as blocks:
-        summary, rows = analyze(tee(blocks), cfg, ref, track=args.track)
+        summary, rows = analyze(blocks, cfg, ref, track=args.track)
     if args.track:
         out = sys.stdout
         for row in rows:
             out.write(json.dumps(row) + "\n")
     else:
-        print(json.dumps({**summary, **_airflow(head[:kept], cfg, quiet_errors=True)}))
+        # the airflow stage's samples read again once analyze is done, not held during
+        # it (8 MiB on top of analyze's peak)
+        x = _head(args.wav, cfg.audio.sample_rate)
+        print(json.dumps({**summary, **_airflow(x, cfg, quiet_errors=True)}))
     return 0
+
+
+def _head(path: str, rate: int) -> Any:
+    """The first ``AIRFLOW_SAMPLES`` samples of a WAV, with no warning that it is cut."""
+    import numpy as np
+
+    from ..io.wav import stream_wav
+
+    x = np.empty(AIRFLOW_SAMPLES)
+    n = 0
+    with stream_wav(path, expect_rate=rate) as blocks:
+        for b in blocks:
+            m = min(len(b), len(x) - n)
+            x[n:n + m] = b[:m]
+            n += m
+            if n == len(x):
+                break
+    return x[:n]
