@@ -11,6 +11,7 @@ answer before its first reference exists).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,20 +42,22 @@ def _gate(cfg: Any) -> Gate:
         raise InputError(f"range gate: {exc}") from exc
 
 
-def _aligned(x: np.ndarray, cfg: Any) -> AlignedPulses:
+def _aligned(x: np.ndarray | Iterable[np.ndarray], cfg: Any) -> AlignedPulses:
     g = _gate(cfg)
     a = PulseAligner(int(cfg.waveform.pri_samples), g, warmup=WARMUP_PULSES)
-    x = np.asarray(x)
-    parts = [a.push(x[i:i + ALIGN_CHUNK]) for i in range(0, max(len(x), 1), ALIGN_CHUNK)]
+    if isinstance(x, np.ndarray):
+        x = [x[i:i + ALIGN_CHUNK] for i in range(0, max(len(x), 1), ALIGN_CHUNK)]
+    parts = [a.push(b) for b in x]
     parts.append(a.flush())
     return AlignedPulses.concat(parts, g.length)
 
 
-def recording_airflow(x: np.ndarray, cfg: Any) -> af.Airflow:
-    """The airflow of a mono recording ``x`` (float samples) made with ``cfg``'s pulses."""
+def recording_airflow(x: np.ndarray | Iterable[np.ndarray], cfg: Any) -> af.Airflow:
+    """The airflow of a mono recording ``x`` (float samples, or its blocks in order: the
+    samples are then never all held) made with ``cfg``'s pulses."""
     pulses = _aligned(x, cfg)
     return af.measure(pulses.pulses, pulses.valid, cfg.audio.sample_rate
-                      / cfg.waveform.pri_samples)
+                      / cfg.waveform.pri_samples, overwrite=True)
 
 
 def rotation_of(airflow: str, downdraft_rotation: str) -> str | None:
@@ -203,7 +206,7 @@ def range_time(x: np.ndarray, cfg: Any, *, start_s: float = 0.0,
     prf = fs / cfg.waveform.pri_samples
     a = af.measure(pulses.pulses, pulses.valid, prf)
     res, ok, static = af.moving_part(pulses.pulses, pulses.valid, prf)
-    img = np.maximum(af.envelope_image(res, ok, static, prf), 0.0)
+    img = np.maximum(af.envelope_image(res, ok, static, prf, overwrite=True), 0.0)
     g = _gate(cfg)
     t = (pulses.index - (pulses.index[0] if len(pulses.index) else 0)) / prf
     keep = t >= start_s

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterator
 from typing import Any
 
 EPILOG = """\
@@ -101,26 +102,19 @@ def _with_reference(args: argparse.Namespace, cfg: Any) -> int:
         for row in rows:
             out.write(json.dumps(row) + "\n")
     else:
-        # the airflow stage's samples read again once analyze is done, not held during
-        # it (8 MiB on top of analyze's peak)
-        x = _head(args.wav, cfg.audio.sample_rate)
-        print(json.dumps({**summary, **_airflow(x, cfg, quiet_errors=True)}))
+        # the airflow stage's samples read again once analyze is done and aligned as
+        # they are read: none held during analyze, nor all at once after it
+        with stream_wav(args.wav, expect_rate=cfg.audio.sample_rate) as blocks:
+            air = _airflow(_head(blocks), cfg, quiet_errors=True)
+        print(json.dumps({**summary, **air}))
     return 0
 
 
-def _head(path: str, rate: int) -> Any:
-    """The first ``AIRFLOW_SAMPLES`` samples of a WAV, with no warning that it is cut."""
-    import numpy as np
-
-    from ..io.wav import stream_wav
-
-    x = np.empty(AIRFLOW_SAMPLES)
+def _head(blocks: Iterator[Any]) -> Iterator[Any]:
+    """The blocks of the first ``AIRFLOW_SAMPLES`` samples (no warning that it is cut)."""
     n = 0
-    with stream_wav(path, expect_rate=rate) as blocks:
-        for b in blocks:
-            m = min(len(b), len(x) - n)
-            x[n:n + m] = b[:m]
-            n += m
-            if n == len(x):
-                break
-    return x[:n]
+    for b in blocks:
+        if n >= AIRFLOW_SAMPLES:
+            return
+        yield b[:AIRFLOW_SAMPLES - n]
+        n += len(b)

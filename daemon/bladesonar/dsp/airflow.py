@@ -136,15 +136,16 @@ def two_sided_mean(x: np.ndarray, keep: np.ndarray, alpha: float) -> np.ndarray:
     return out
 
 
-def moving_part(pulses: np.ndarray, valid: np.ndarray, prf: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def moving_part(pulses: np.ndarray, valid: np.ndarray, prf: float, *,
+                overwrite: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Step 1: the pulses less the static room (two-sided), less each pulse's fit by the
     static mean and its derivative. Returns (residuals, usable, the static room's mean
     pulse) with bursts not usable. Row by row work runs in blocks of ``ROWS`` pulses and
-    the residuals overwrite the band-limited copy: two (n, L) arrays at a time."""
+    the residuals overwrite the band-limited copy (with ``overwrite``, ``pulses`` itself
+    when it is a float64 array: its caller's copy is then spent)."""
     pulses = np.asarray(pulses, dtype=np.float64)
     n, L = pulses.shape
-    x = np.empty((n, L))
+    x = pulses if overwrite and pulses.flags.writeable else np.empty((n, L))
     for a, b in _row_blocks(n):
         x[a:b] = band_limited(pulses[a:b], BAND)
     ok = np.asarray(valid, bool).copy()
@@ -168,22 +169,38 @@ def moving_part(pulses: np.ndarray, valid: np.ndarray, prf: float
             coef, *_ = np.linalg.lstsq(basis, res[a + i], rcond=None)
             res[a + i] -= basis @ coef
     res[~ok] = 0.0
-    return res, ok, static[ok].mean(axis=0) if ok.any() else np.zeros(L)
+    return res, ok, _row_mean(static, ok)
 
 
-def envelope_image(res: np.ndarray, ok: np.ndarray, static: np.ndarray, prf: float
-                   ) -> np.ndarray:
+def _row_mean(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``x[rows].mean(axis=0)`` (the same bits: rows added in order) with no copy of the
+    rows; zeros when there are none."""
+    acc = np.zeros(x.shape[1])
+    idx = np.nonzero(rows)[0]
+    for i in idx:
+        acc += x[i]
+    if len(idx):
+        acc /= len(idx)
+    return acc
+
+
+def envelope_image(res: np.ndarray, ok: np.ndarray, static: np.ndarray, prf: float, *,
+                   overwrite: bool = False) -> np.ndarray:
     """Step 2: the residuals' envelopes, weighted down where the static room is strong,
     less their own two-sided mean; rows not usable are zero. The envelopes (complex
-    analytic signals) are taken ``ROWS`` pulses at a time."""
+    analytic signals) are taken ``ROWS`` pulses at a time, over ``res`` itself with
+    ``overwrite``."""
     n, L = res.shape
-    env = np.empty((n, L))
+    env = res if overwrite else np.empty((n, L))
     zero = np.zeros(L)
     for a, b in _row_blocks(n):
         env[a:b] = envelope_features(res[a:b], zero)
     env[~ok] = 0.0
     if ok.any():
-        moving = float(np.median(np.sqrt(np.mean(env[ok] ** 2, axis=0))))
+        sq = np.zeros(L)
+        for i in np.nonzero(ok)[0]:      # np.mean(env[ok] ** 2, axis=0), no copies
+            sq += env[i] * env[i]
+        moving = float(np.median(np.sqrt(sq / np.count_nonzero(ok))))
         s_env = np.convolve(analytic_magnitude(static[None, :])[0], np.ones(5) / 5.0,
                             mode="same")
         if moving > 0:
@@ -306,8 +323,11 @@ def decide(per_lag: list[np.ndarray], used: int) -> Airflow:
                    f"per pulse, {abs(ts):.1f} standard errors", lags)
 
 
-def measure(pulses: np.ndarray, valid: np.ndarray, prf: float) -> Airflow:
-    """Airflow of aligned gated pulses (rows; ``valid`` marks usable ones) at ``prf`` Hz."""
+def measure(pulses: np.ndarray, valid: np.ndarray, prf: float, *,
+            overwrite: bool = False) -> Airflow:
+    """Airflow of aligned gated pulses (rows; ``valid`` marks usable ones) at ``prf`` Hz;
+    with ``overwrite`` a float64 ``pulses`` is used as working memory (its contents are
+    lost: one (n, L) array less)."""
     x = np.asarray(pulses, dtype=np.float64)
     if x.ndim != 2 or len(valid) != len(x):
         raise ValueError(f"pulses must be (n, L) with one valid flag per row, got "
@@ -318,8 +338,8 @@ def measure(pulses: np.ndarray, valid: np.ndarray, prf: float) -> Airflow:
     if np.count_nonzero(ok) < 2:
         return Airflow("unknown", 0.0, 0.0, 0.0, int(np.count_nonzero(ok)),
                        "too short: fewer than 2 usable pulses")
-    res, ok, static = moving_part(x, ok, prf)
-    d = envelope_image(res, ok, static, prf)
+    res, ok, static = moving_part(x, ok, prf, overwrite=overwrite)
+    d = envelope_image(res, ok, static, prf, overwrite=True)     # res is this call's
     del res
     first = block_correlations(d, ok, 1)
     speed = abs(peak_shift(first.sum(axis=0)))
