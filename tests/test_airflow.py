@@ -129,6 +129,9 @@ def test_the_stage_in_blocks_of_rows_gives_the_bits_of_the_whole(monkeypatch):
     whole, b = stage()
     assert not blocked[1][11] and a.airflow == "down"
     assert a == b
+    spent = x.copy()                                 # its own pulses as working memory
+    assert af.measure(spent, valid, PRF, overwrite=True) == a
+    assert not np.array_equal(spent, x)
     for u, v in zip(blocked, whole, strict=True):
         np.testing.assert_array_equal(u, v)
 
