@@ -88,6 +88,53 @@ def test_the_two_sided_mean_looks_both_ways_alike():
     assert np.allclose(c, 2.5)
 
 
+
+def test_the_block_correlations_are_sums_of_products_at_each_shift():
+    # the spectra are taken ROWS pulses at a time: against the definition written out
+    # (sum over range of d[i, j] d[i + lag, j + s], pairs of usable pulses, per BLOCK),
+    # on more pulses than a block of rows holds and with pulses left out
+    rng = np.random.default_rng(5)
+    n, L = 2 * af.ROWS + 37, 120
+    d = rng.standard_normal((n, L))
+    ok = rng.uniform(size=n) > 0.15
+    lags = [1, 3, af.MAX_LAG]
+    got = af.lag_correlations(d, ok, lags)
+    for lag, blocks in zip(lags, got, strict=True):
+        want = np.zeros(((n + af.BLOCK - 1) // af.BLOCK, 2 * af.MAX_SHIFT + 1))
+        for i in range(n - lag):
+            if ok[i] and ok[i + lag]:
+                for s in range(-af.MAX_SHIFT, af.MAX_SHIFT + 1):
+                    a, b = max(0, -s), min(L, L - s)
+                    want[i // af.BLOCK, s + af.MAX_SHIFT] += d[i, a:b] @ d[i + lag, a + s:b + s]
+        np.testing.assert_allclose(blocks, want, rtol=0, atol=1e-9 * np.abs(want).max())
+        np.testing.assert_array_equal(blocks, af.block_correlations(d, ok, lag))
+    assert not af.lag_correlations(d[:3], ok[:3], [3])[0].any()   # no pair that far apart
+
+
+def test_the_stage_in_blocks_of_rows_gives_the_bits_of_the_whole(monkeypatch):
+    # memory: the stage works ROWS pulses at a time; the figures must be those of all
+    # rows at once, bit for bit
+    x = streaks(3 * af.ROWS + 21, -1.5, L=300, noise=0.01, seed=2)
+    valid = np.random.default_rng(4).uniform(size=len(x)) > 0.05
+    x[11] *= 40.0                                    # a burst: the static is taken again
+
+    def stage():
+        res, ok, static = af.moving_part(x, valid, PRF)
+        d = af.envelope_image(res, ok, static, PRF)
+        return [res, ok, static, d, *af.lag_correlations(d, ok, [1, 2, 5])], \
+            af.measure(x, valid, PRF)
+
+    blocked, a = stage()
+    monkeypatch.setattr(af, "ROWS", 10 * len(x))     # one block: the whole recording
+    whole, b = stage()
+    assert not blocked[1][11] and a.airflow == "down"
+    assert a == b
+    spent = x.copy()                                 # its own pulses as working memory
+    assert af.measure(spent, valid, PRF, overwrite=True) == a
+    assert not np.array_equal(spent, x)
+    for u, v in zip(blocked, whole, strict=True):
+        np.testing.assert_array_equal(u, v)
+
 def _run(seed: int, **over):
     d = random_scene.draw_3d(seed)
     cfg = config.from_mapping({"scene": {"blades": d.blades}})

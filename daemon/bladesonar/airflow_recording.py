@@ -11,6 +11,7 @@ answer before its first reference exists).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,13 +20,16 @@ import numpy as np
 from .dsp import airflow as af
 from .dsp import fingerprint as fp
 from .dsp.gate import Gate, make_gate
-from .dsp.pulses import AlignedPulses, align
+from .dsp.pulses import AlignedPulses, PulseAligner
 from .errors import EstimationError, InputError
 
 #: Where the gate opens when the config leaves it open, m.
 AIRFLOW_GATE_START_M = 0.3
 #: First pulses left out: the reverberation of earlier pulses has not built up in them.
 WARMUP_PULSES = 20
+#: Samples fed to the aligner at a time (the same pulses as all at once, without the
+#: aligner's whole-recording temporaries: 23 MiB of them for 2^20 samples).
+ALIGN_CHUNK = 1 << 16
 
 
 def _gate(cfg: Any) -> Gate:
@@ -38,16 +42,22 @@ def _gate(cfg: Any) -> Gate:
         raise InputError(f"range gate: {exc}") from exc
 
 
-def _aligned(x: np.ndarray, cfg: Any) -> AlignedPulses:
-    return align(np.asarray(x, dtype=np.float64), int(cfg.waveform.pri_samples), _gate(cfg),
-                 warmup=WARMUP_PULSES)
+def _aligned(x: np.ndarray | Iterable[np.ndarray], cfg: Any) -> AlignedPulses:
+    g = _gate(cfg)
+    a = PulseAligner(int(cfg.waveform.pri_samples), g, warmup=WARMUP_PULSES)
+    if isinstance(x, np.ndarray):
+        x = [x[i:i + ALIGN_CHUNK] for i in range(0, max(len(x), 1), ALIGN_CHUNK)]
+    parts = [a.push(b) for b in x]
+    parts.append(a.flush())
+    return AlignedPulses.concat(parts, g.length)
 
 
-def recording_airflow(x: np.ndarray, cfg: Any) -> af.Airflow:
-    """The airflow of a mono recording ``x`` (float samples) made with ``cfg``'s pulses."""
+def recording_airflow(x: np.ndarray | Iterable[np.ndarray], cfg: Any) -> af.Airflow:
+    """The airflow of a mono recording ``x`` (float samples, or its blocks in order: the
+    samples are then never all held) made with ``cfg``'s pulses."""
     pulses = _aligned(x, cfg)
     return af.measure(pulses.pulses, pulses.valid, cfg.audio.sample_rate
-                      / cfg.waveform.pri_samples)
+                      / cfg.waveform.pri_samples, overwrite=True)
 
 
 def rotation_of(airflow: str, downdraft_rotation: str) -> str | None:
@@ -196,7 +206,7 @@ def range_time(x: np.ndarray, cfg: Any, *, start_s: float = 0.0,
     prf = fs / cfg.waveform.pri_samples
     a = af.measure(pulses.pulses, pulses.valid, prf)
     res, ok, static = af.moving_part(pulses.pulses, pulses.valid, prf)
-    img = np.maximum(af.envelope_image(res, ok, static, prf), 0.0)
+    img = np.maximum(af.envelope_image(res, ok, static, prf, overwrite=True), 0.0)
     g = _gate(cfg)
     t = (pulses.index - (pulses.index[0] if len(pulses.index) else 0)) / prf
     keep = t >= start_s

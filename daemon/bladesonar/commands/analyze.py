@@ -89,33 +89,32 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _with_reference(args: argparse.Namespace, cfg: Any) -> int:
-    import numpy as np
-
     from ..io.reference import load_reference
     from ..io.wav import stream_wav
     from ..offline import analyze
 
     ref = load_reference(args.reference)
-    head: list[Any] = []
-    kept = 0
-
-    def tee(blocks: Iterator[Any]) -> Iterator[Any]:
-        # the airflow stage reads the first AIRFLOW_SAMPLES of what analyze streams
-        nonlocal kept
-        for b in blocks:
-            if kept < AIRFLOW_SAMPLES:
-                head.append(np.array(b[:AIRFLOW_SAMPLES - kept], dtype=np.float64))
-                kept += len(head[-1])
-            yield b
-
     # read in blocks: memory independent of the recording's length (rows aside)
     with stream_wav(args.wav, expect_rate=cfg.audio.sample_rate) as blocks:
-        summary, rows = analyze(tee(blocks), cfg, ref, track=args.track)
+        summary, rows = analyze(blocks, cfg, ref, track=args.track)
     if args.track:
         out = sys.stdout
         for row in rows:
             out.write(json.dumps(row) + "\n")
     else:
-        x = np.concatenate(head) if head else np.zeros(0)
-        print(json.dumps({**summary, **_airflow(x, cfg, quiet_errors=True)}))
+        # the airflow stage's samples read again once analyze is done and aligned as
+        # they are read: none held during analyze, nor all at once after it
+        with stream_wav(args.wav, expect_rate=cfg.audio.sample_rate) as blocks:
+            air = _airflow(_head(blocks), cfg, quiet_errors=True)
+        print(json.dumps({**summary, **air}))
     return 0
+
+
+def _head(blocks: Iterator[Any]) -> Iterator[Any]:
+    """The blocks of the first ``AIRFLOW_SAMPLES`` samples (no warning that it is cut)."""
+    n = 0
+    for b in blocks:
+        if n >= AIRFLOW_SAMPLES:
+            return
+        yield b[:AIRFLOW_SAMPLES - n]
+        n += len(b)

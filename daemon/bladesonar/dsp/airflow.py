@@ -62,6 +62,10 @@ FIT_SHIFT = 46.0
 MAX_SHIFT = 48
 #: Pulses per block of the noise estimate (about 0.5 s).
 BLOCK = 16
+#: Pulses whose spectra and envelopes are held at once (memory: 800 pulses at once took
+#: 100 MiB). Every step is row by row or adds rows in their order, so the figures are
+#: the same bits whatever the blocks (tests/test_airflow.py).
+ROWS = 8 * BLOCK
 #: Fewest blocks (of valid pulse pairs) that are called at all: about 4 s at 34 Hz.
 MIN_BLOCKS = 8
 #: Random halves of the blocks the standard error comes from (fixed seed: the same
@@ -104,6 +108,11 @@ class Airflow:
                     airflow_lags=self.lags, airflow_reason=self.reason)
 
 
+def _row_blocks(n: int) -> list[tuple[int, int]]:
+    """Row ranges of ``ROWS`` pulses covering ``n`` rows."""
+    return [(a, min(n, a + ROWS)) for a in range(0, n, ROWS)]
+
+
 def two_sided_mean(x: np.ndarray, keep: np.ndarray, alpha: float) -> np.ndarray:
     """The mean of forward and backward exponential averages (weight ``alpha`` per row)
     of the rows of ``x`` where ``keep``; rows not kept do not enter the averages. Each
@@ -127,46 +136,78 @@ def two_sided_mean(x: np.ndarray, keep: np.ndarray, alpha: float) -> np.ndarray:
     return out
 
 
-def moving_part(pulses: np.ndarray, valid: np.ndarray, prf: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def moving_part(pulses: np.ndarray, valid: np.ndarray, prf: float, *,
+                overwrite: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Step 1: the pulses less the static room (two-sided), less each pulse's fit by the
     static mean and its derivative. Returns (residuals, usable, the static room's mean
-    pulse) with bursts not usable."""
-    x = band_limited(np.asarray(pulses, dtype=np.float64), BAND)
+    pulse) with bursts not usable. Row by row work runs in blocks of ``ROWS`` pulses and
+    the residuals overwrite the band-limited copy (with ``overwrite``, ``pulses`` itself
+    when it is a float64 array: its caller's copy is then spent)."""
+    pulses = np.asarray(pulses, dtype=np.float64)
+    n, L = pulses.shape
+    x = pulses if overwrite and pulses.flags.writeable else np.empty((n, L))
+    for a, b in _row_blocks(n):
+        x[a:b] = band_limited(pulses[a:b], BAND)
     ok = np.asarray(valid, bool).copy()
     alpha = min(1.0, 1.0 / (STATIC_S * prf))
     static = two_sided_mean(x, ok, alpha)
-    res = x - static
-    energy = np.where(ok, np.mean(res * res, axis=1), 0.0)
-    burst = np.zeros(len(x), bool)
+    energy = np.zeros(n)
+    for a, b in _row_blocks(n):
+        r = x[a:b] - static[a:b]
+        energy[a:b] = np.where(ok[a:b], np.mean(r * r, axis=1), 0.0)
+    burst = np.zeros(n, bool)
     burst[ok] = dev.burst_mask(energy[ok])
     if burst.any():            # again without the bursts in the static estimate
         ok &= ~burst
         static = two_sided_mean(x, ok, alpha)
-        res = x - static
-    d_static = np.gradient(static, axis=1)
-    for i in np.nonzero(ok)[0]:
-        basis = np.stack([static[i], d_static[i]], axis=1)
-        coef, *_ = np.linalg.lstsq(basis, res[i], rcond=None)
-        res[i] -= basis @ coef
+    res = x                    # x is not needed past here
+    res -= static
+    for a, b in _row_blocks(n):
+        d_static = np.gradient(static[a:b], axis=1)
+        for i in np.nonzero(ok[a:b])[0]:
+            basis = np.stack([static[a + i], d_static[i]], axis=1)
+            coef, *_ = np.linalg.lstsq(basis, res[a + i], rcond=None)
+            res[a + i] -= basis @ coef
     res[~ok] = 0.0
-    return res, ok, static[ok].mean(axis=0) if ok.any() else np.zeros(x.shape[1])
+    return res, ok, _row_mean(static, ok)
 
 
-def envelope_image(res: np.ndarray, ok: np.ndarray, static: np.ndarray, prf: float
-                   ) -> np.ndarray:
+def _row_mean(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``x[rows].mean(axis=0)`` (the same bits: rows added in order) with no copy of the
+    rows; zeros when there are none."""
+    acc = np.zeros(x.shape[1])
+    idx = np.nonzero(rows)[0]
+    for i in idx:
+        acc += x[i]
+    if len(idx):
+        acc /= len(idx)
+    return acc
+
+
+def envelope_image(res: np.ndarray, ok: np.ndarray, static: np.ndarray, prf: float, *,
+                   overwrite: bool = False) -> np.ndarray:
     """Step 2: the residuals' envelopes, weighted down where the static room is strong,
-    less their own two-sided mean; rows not usable are zero."""
-    env = envelope_features(res, np.zeros(res.shape[1]))
+    less their own two-sided mean; rows not usable are zero. The envelopes (complex
+    analytic signals) are taken ``ROWS`` pulses at a time, over ``res`` itself with
+    ``overwrite``."""
+    n, L = res.shape
+    env = res if overwrite else np.empty((n, L))
+    zero = np.zeros(L)
+    for a, b in _row_blocks(n):
+        env[a:b] = envelope_features(res[a:b], zero)
     env[~ok] = 0.0
     if ok.any():
-        moving = float(np.median(np.sqrt(np.mean(env[ok] ** 2, axis=0))))
+        sq = np.zeros(L)
+        for i in np.nonzero(ok)[0]:      # np.mean(env[ok] ** 2, axis=0), no copies
+            sq += env[i] * env[i]
+        moving = float(np.median(np.sqrt(sq / np.count_nonzero(ok))))
         s_env = np.convolve(analytic_magnitude(static[None, :])[0], np.ones(5) / 5.0,
                             mode="same")
         if moving > 0:
             env *= 1.0 / (1.0 + (s_env / (STATIC_WEIGHT * moving)) ** 2)[None, :]
     alpha = min(1.0, 1.0 / (ENVELOPE_S * prf))
-    d: np.ndarray = env - two_sided_mean(env, ok, alpha)
+    d = two_sided_mean(env, ok, alpha)
+    np.subtract(env, d, out=d)
     d[~ok] = 0.0
     return d
 
@@ -176,19 +217,32 @@ def block_correlations(d: np.ndarray, ok: np.ndarray, lag: int) -> np.ndarray:
     later, shifts -MAX_SHIFT..MAX_SHIFT, summed over blocks of ``BLOCK`` pulses:
     (blocks, 2 MAX_SHIFT + 1); shift s > 0 means the later pulse's echoes lie further
     out."""
+    return lag_correlations(d, ok, [lag])[0]
+
+
+def lag_correlations(d: np.ndarray, ok: np.ndarray, lags: list[int]) -> list[np.ndarray]:
+    """:func:`block_correlations` at each of ``lags``, the spectra shared by the lags and
+    taken ``ROWS`` pulses at a time (whole, the spectra and products of 800 pulses took
+    100 MiB)."""
     n, L = d.shape
     nb = max(1, -(-n // BLOCK))
-    out = np.zeros((nb, 2 * MAX_SHIFT + 1))
-    if lag >= n:
-        return out
+    outs = [np.zeros((nb, 2 * MAX_SHIFT + 1)) for _ in lags]
+    todo = [(out, lag) for out, lag in zip(outs, lags, strict=True) if lag < n]
+    if not todo:
+        return outs
+    longest = max(lag for _, lag in todo)
     nfft = 1 << int(math.ceil(math.log2(2 * L)))
-    F = np.fft.rfft(d, n=nfft, axis=1)
-    cc = np.fft.irfft(np.conj(F[:-lag]) * F[lag:], n=nfft, axis=1)
-    cc = np.concatenate([cc[:, -MAX_SHIFT:], cc[:, :MAX_SHIFT + 1]], axis=1)
-    both = ok[:-lag] & ok[lag:]
-    k = np.nonzero(both)[0]
-    np.add.at(out, k // BLOCK, cc[k])
-    return out
+    for a, b in _row_blocks(n):
+        F = np.fft.rfft(d[a:min(n, b + longest)], n=nfft, axis=1)
+        for out, lag in todo:
+            # pairs (i, i + lag) with both usable, i in [a, b)
+            k = a + np.nonzero(ok[a:min(b, n - lag)] & ok[a + lag:min(b + lag, n)])[0]
+            if len(k) == 0:
+                continue
+            cc = np.fft.irfft(np.conj(F[k - a]) * F[k - a + lag], n=nfft, axis=1)
+            cc = np.concatenate([cc[:, -MAX_SHIFT:], cc[:, :MAX_SHIFT + 1]], axis=1)
+            np.add.at(out, k // BLOCK, cc)
+    return outs
 
 
 def peak_shift(c: np.ndarray, near: float | None = None, half: float = 0.0) -> float:
@@ -269,8 +323,11 @@ def decide(per_lag: list[np.ndarray], used: int) -> Airflow:
                    f"per pulse, {abs(ts):.1f} standard errors", lags)
 
 
-def measure(pulses: np.ndarray, valid: np.ndarray, prf: float) -> Airflow:
-    """Airflow of aligned gated pulses (rows; ``valid`` marks usable ones) at ``prf`` Hz."""
+def measure(pulses: np.ndarray, valid: np.ndarray, prf: float, *,
+            overwrite: bool = False) -> Airflow:
+    """Airflow of aligned gated pulses (rows; ``valid`` marks usable ones) at ``prf`` Hz;
+    with ``overwrite`` a float64 ``pulses`` is used as working memory (its contents are
+    lost: one (n, L) array less)."""
     x = np.asarray(pulses, dtype=np.float64)
     if x.ndim != 2 or len(valid) != len(x):
         raise ValueError(f"pulses must be (n, L) with one valid flag per row, got "
@@ -281,8 +338,9 @@ def measure(pulses: np.ndarray, valid: np.ndarray, prf: float) -> Airflow:
     if np.count_nonzero(ok) < 2:
         return Airflow("unknown", 0.0, 0.0, 0.0, int(np.count_nonzero(ok)),
                        "too short: fewer than 2 usable pulses")
-    res, ok, static = moving_part(x, ok, prf)
-    d = envelope_image(res, ok, static, prf)
+    res, ok, static = moving_part(x, ok, prf, overwrite=overwrite)
+    d = envelope_image(res, ok, static, prf, overwrite=True)     # res is this call's
+    del res
     first = block_correlations(d, ok, 1)
     speed = abs(peak_shift(first.sum(axis=0)))
     lags = int(min(MAX_LAG, max(1, SPAN // max(speed, 0.5))))
@@ -292,5 +350,5 @@ def measure(pulses: np.ndarray, valid: np.ndarray, prf: float) -> Airflow:
         return Airflow("unknown", 0.0, 0.0, speed, int(np.count_nonzero(ok)),
                        f"the strongest moving echoes shift {speed:.1f} samples per pulse, "
                        "too fast to be confirmed at a second lag", 1)
-    per_lag = [first] + [block_correlations(d, ok, lag) for lag in range(2, lags + 1)]
+    per_lag = [first] + lag_correlations(d, ok, list(range(2, lags + 1)))
     return decide(per_lag, int(np.count_nonzero(ok)))
