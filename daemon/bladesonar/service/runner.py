@@ -28,6 +28,7 @@ from ..reference_fit import FitWatch
 from . import learner, memory, settings_store
 from .airflow_watch import AirflowWatch, Contradiction
 from .audio import AudioIO, PulseBlock
+from .every import Every
 from .messages import Command, utc_iso
 from .notify import Notifier, NullNotifier
 from .publish import Publisher
@@ -167,8 +168,9 @@ class Service:
         self._reference_missing = False
         #: stat signature of the reference file when it was last read (None: absent)
         self._reference_sig: tuple | None = None
-        self._next_reference_check = 0.0
-        self._next_reference_try = 0.0
+        #: stat the reference in use / try to load a missing or invalid one
+        self._reference_check = Every(REFERENCE_POLL_S, clock=clock)
+        self._reference_try = Every(REFERENCE_POLL_S, clock=clock)
         self._signal_problem_text: str | None = None
         self._cpu_mark = (0.0, 0.0)
         self._started_at = utc_iso()
@@ -190,7 +192,7 @@ class Service:
         self._learn_why = "command"
         self._job_direction = "unknown"
         self.fit: FitWatch | None = None
-        self._next_fit = 0.0
+        self._fit_sample = Every(FIT_SAMPLE_S, clock=clock)
         #: the live airflow (its own worker: a learn job must not hold it up, nor it one)
         self.airflow = AirflowWatch(cfg)
         self.airflow_jobs = learner.ReferenceJobs()
@@ -257,7 +259,8 @@ class Service:
         self._publish_status()
         self.publisher.start()
         self.notifier.status("starting")
-        next_state = next_stats = t_start
+        state_every = Every(lambda: self.cfg.mqtt.publish_interval_s, clock=self.clock)
+        stats_every = Every(lambda: self.cfg.mqtt.stats_interval_s, clock=self.clock)
         last_pulse_t = t_start
         try:
             while not self._stopping():
@@ -272,16 +275,14 @@ class Service:
                 self._take_job_results()
                 self._take_airflow()
                 self._take_commands()
-                if self.analyzer is not None and now >= self._next_reference_check \
-                        and not self.jobs.busy:
-                    self._next_reference_check = now + REFERENCE_POLL_S
+                if self.analyzer is not None and not self.jobs.busy \
+                        and self._reference_check.due(now):
                     if self._reference_signature() != self._reference_sig:
                         log.info("the reference file changed; reading it again")
                         self.analyzer = None
-                        self._next_reference_try = 0.0
-                if self.analyzer is None and now >= self._next_reference_try \
-                        and not self.jobs.busy:
-                    self._next_reference_try = now + REFERENCE_POLL_S
+                        self._reference_try.trigger()
+                if self.analyzer is None and not self.jobs.busy \
+                        and self._reference_try.due(now):
                     self._load_reference()
                 self._maybe_learn(now)
                 self._publish_status()
@@ -319,12 +320,10 @@ class Service:
                     # learning a first reference: pulses flow, nothing to estimate yet
                     self.counters.pulses_processed += len(blocks)
                     self.notifier.watchdog()
-                    if now >= next_state:
+                    if state_every.due(now):
                         self._publish_unknown()
-                        next_state = now + self.cfg.mqtt.publish_interval_s
-                    if now >= next_stats:
+                    if stats_every.due(now):
                         self.publisher.publish_stats(self.stats(now - t_start))
-                        next_stats = now + self.cfg.mqtt.stats_interval_s
                     continue
                 try:
                     for block in blocks:
@@ -349,12 +348,11 @@ class Service:
                     self._rec.rotations[estimate.rotation or "other"] += len(blocks)
                 if estimate.rotating is not None:
                     self._turning_rotation = estimate.rotation if estimate.rotating else None
-                if now >= self._next_fit:
-                    self._next_fit = now + FIT_SAMPLE_S
+                if self._fit_sample.due(now):
                     self._sample_fit(now)
                 stale = self.fit is not None and self.fit.stale
                 changed = self._events(estimate, publish=not stale)
-                if changed or now >= next_state:
+                if changed or state_every.ready(now):
                     status, detail = self._status()
                     if stale:
                         # a reference that no longer fits gives confident wrong answers
@@ -369,10 +367,9 @@ class Service:
                     if done_at is not None:
                         self._latencies.append(self.clock() - done_at)
                     self.notifier.status(self._status_line(estimate))
-                    next_state = now + self.cfg.mqtt.publish_interval_s
-                if now >= next_stats:
+                    state_every.restart(now)
+                if stats_every.due(now):
                     self.publisher.publish_stats(self.stats(now - t_start))
-                    next_stats = now + self.cfg.mqtt.stats_interval_s
                     memory.give_back_memory()     # what the blocks since freed
         finally:
             self.notifier.stopping()
@@ -834,7 +831,7 @@ class Service:
             # status lies between learning and the new reference
             self.analyzer = None
             self._reference_problem = None
-            self._next_reference_try = self.clock() + REFERENCE_POLL_S
+            self._reference_try.restart()
             self._load_reference()
             return
         self.counters.learn_failures += 1
@@ -909,7 +906,7 @@ class Service:
         # The reference is re-read (a new one may have been recorded).
         self.analyzer = None
         self._reference_problem = None
-        self._next_reference_try = 0.0
+        self._reference_try.trigger()
         self._learn_next_try = 0.0
         log.info("configuration reloaded from %s", self.config_path)
         if self._ready_sent:
