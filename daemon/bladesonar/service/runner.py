@@ -157,6 +157,11 @@ class Service:
         self._last_state: Estimate | None = None
         self._signal_problem_text: str | None = None
         self._cpu_mark = (0.0, 0.0)
+        # the loop's clocks (set by _start)
+        self._t_start = 0.0
+        self._last_pulse_t = 0.0
+        self._state_every = Every(lambda: self.cfg.mqtt.publish_interval_s, clock=clock)
+        self._stats_every = Every(lambda: self.cfg.mqtt.stats_interval_s, clock=clock)
         self._started_at = utc_iso()
         #: end of the captured period -> its state handed to the publisher, seconds
         self._latencies: list[float] = []
@@ -229,10 +234,43 @@ class Service:
     # -- the loop ------------------------------------------------------------------------
 
     def run(self) -> int:
+        """``bladesonar run``'s loop: start, then per wake-up look after what the other
+        threads and the files brought, capture a batch, and either learn from it or
+        analyse and publish it; shut down whatever way the loop ends."""
+        self._start()
+        try:
+            while not self._stopping():
+                now = self.clock()
+                if self._time_is_up(now):
+                    break
+                self._look_after(now)
+                if self._idle():
+                    continue
+                blocks, now = self._capture()
+                if not blocks:
+                    continue
+                self._side_paths(blocks)
+                if self.analyzer is None:
+                    self._while_learning(blocks, now)
+                    continue
+                estimate = self._analyse(blocks)
+                if estimate is None:
+                    continue
+                self._took_estimate(estimate, len(blocks), now)
+                self._publish(estimate, blocks, now)
+        finally:
+            self._shut_down()
+        return 0
+
+    # -- the loop's phases -----------------------------------------------------------------
+
+    def _start(self) -> None:
+        """Publish "starting" and connect before anything slow: Home Assistant must not
+        show a previous run's values as current while the reference loads."""
         # before the reference and the warm-up allocate: a fixed mmap threshold keeps the
         # heap from holding what the start freed (service/memory.py)
         memory.fix_mmap_threshold()
-        t_start = self.clock()
+        self._t_start = self.clock()
         t = os.times()
         self._cpu_mark = (t.user + t.system, 0.0)   # start-up (imports) is not steady state
         self.publisher = self.publisher_factory(self.cfg)
@@ -243,123 +281,162 @@ class Service:
         self._publish_status()
         self.publisher.start()
         self.notifier.status("starting")
-        state_every = Every(lambda: self.cfg.mqtt.publish_interval_s, clock=self.clock)
-        stats_every = Every(lambda: self.cfg.mqtt.stats_interval_s, clock=self.clock)
-        last_pulse_t = t_start
-        try:
-            while not self._stopping():
-                now = self.clock()
-                if self.max_seconds is not None and now - t_start >= self.max_seconds:
-                    log.info("ran for %.1f s as asked (--seconds); stopping", self.max_seconds)
-                    break
-                if self._sig_reload or self._reload.is_set():
-                    self._sig_reload = False     # signals until here join this reload
-                    self._reload.clear()
-                    self._do_reload()
-                self._take_job_results()
-                self._take_airflow()
-                self._take_commands()
-                if self.keeper.poll(now, busy=bool(self.jobs.busy)):
-                    self._last_state = None
-                self._maybe_learn(now)
-                self._publish_status()
-                if self.analyzer is None and self._rec is None \
-                        and not self.keeper.learn_allowed():
-                    self._close_audio()     # nothing reads it while we wait: no xruns
-                    self._pause(min(REFERENCE_POLL_S, 0.25))
-                    continue
-                if self.audio is None:
-                    self._open_audio()
-                    last_pulse_t = self.clock()
-                assert self.audio is not None
-                # analysing: the periods of one analysis block in one wake-up (the loop's
-                # own work once a period was a quarter of this thread's CPU)
-                batch = self.analyzer.block_pulses if self.analyzer is not None else 1
-                blocks = self.audio.read_pulses(batch, timeout=0.5)
-                now = self.clock()
-                if not blocks:
-                    if now - last_pulse_t > AUDIO_STALL_S:
-                        log.warning("no audio for %.1f s; reopening the audio path",
-                                    now - last_pulse_t)
-                        self.notifier.status("no audio: reopening the device")
-                        self._close_audio()
-                        self.counters.audio_restarts += 1
-                        last_pulse_t = now
-                    continue
-                last_pulse_t = now
-                for block in blocks:
-                    self.airflow.add(block.samples, block.start_sample, block.discontinuity)
-                self._maybe_measure_airflow()
-                for block in blocks:
-                    if self._rec is None:        # done (or given up) within the batch
-                        break
-                    self._record(block)
-                if self.analyzer is None:
-                    # learning a first reference: pulses flow, nothing to estimate yet
-                    self.counters.pulses_processed += len(blocks)
-                    self.notifier.watchdog()
-                    if state_every.due(now):
-                        self._publish_unknown()
-                    if stats_every.due(now):
-                        self.publisher.publish_stats(self.stats(now - t_start))
-                    continue
-                try:
-                    for block in blocks:
-                        self.analyzer.feed(block.samples, block.start_sample)
-                        self.counters.pulses_processed += 1
-                except BladesonarError as exc:
-                    # e.g. no direct-coupling pulse: speaker muted, wrong device, unplugged
-                    self._signal_problem(str(exc))
-                    self._pause(SIGNAL_RETRY_S)
-                    continue
-                estimate = self.analyzer.estimate()
-                if estimate is None:  # not aligned yet (or re-acquiring after a gap)
-                    continue
-                self._signal_problem_text = None
-                if not self._ready_sent:
-                    self._ready_sent = True
-                    memory.give_back_memory()         # what the start freed
-                    self.notifier.ready(self._status_line(estimate))
-                    log.info("running: %s", self._status_line(estimate))
-                self.notifier.watchdog()
-                if self._rec is not None:
-                    self._rec.rotations[estimate.rotation or "other"] += len(blocks)
-                if estimate.rotating is not None:
-                    self._turning_rotation = estimate.rotation if estimate.rotating else None
-                if self._fit_sample.due(now):
-                    self.keeper.sample_fit(now)
-                stale = self.keeper.stale
-                changed = self._events(estimate, publish=not stale)
-                if changed or state_every.ready(now):
-                    status, detail = self._status()
-                    if stale:
-                        # a reference that no longer fits gives confident wrong answers
-                        # (measured: a sensor moved by 20 cm): none is published
-                        estimate = Estimate.unknown(
-                            f"the reference no longer fits the room: {detail}",
-                            reference=estimate.reference)
-                    self.publisher.publish_state(self._with_airflow(estimate), status=status,
-                                                 detail=None if status == "ok" else detail)
-                    self._publish_status()    # with the state (on change only)
-                    done_at = blocks[-1].captured_at     # the period that completed it
-                    if done_at is not None:
-                        self._latencies.append(self.clock() - done_at)
-                    self.notifier.status(self._status_line(estimate))
-                    state_every.restart(now)
-                if stats_every.due(now):
-                    self.publisher.publish_stats(self.stats(now - t_start))
-                    memory.give_back_memory()     # what the blocks since freed
-        finally:
-            self.notifier.stopping()
+        self._state_every = Every(lambda: self.cfg.mqtt.publish_interval_s, clock=self.clock)
+        self._stats_every = Every(lambda: self.cfg.mqtt.stats_interval_s, clock=self.clock)
+        self._last_pulse_t = self._t_start
+
+    def _time_is_up(self, now: float) -> bool:
+        """``--seconds``: the tests and benchmarks run the real loop for a set time."""
+        if self.max_seconds is not None and now - self._t_start >= self.max_seconds:
+            log.info("ran for %.1f s as asked (--seconds); stopping", self.max_seconds)
+            return True
+        return False
+
+    def _look_after(self, now: float) -> None:
+        """Between captures, in this one thread: a reload, the workers' results, the
+        commands, the reference file and whether to learn; then the status if it changed.
+        Only this thread changes state, so none of it needs a lock."""
+        if self._sig_reload or self._reload.is_set():
+            self._sig_reload = False     # signals until here join this reload
+            self._reload.clear()
+            self._do_reload()
+        self._take_job_results()
+        self._take_airflow()
+        self._take_commands()
+        if self.keeper.poll(now, busy=bool(self.jobs.busy)):
+            self._last_state = None
+        self._maybe_learn(now)
+        self._publish_status()
+
+    def _idle(self) -> bool:
+        """No reference and none to learn: the audio is closed while waiting (nothing
+        would read it: xruns) and the loop only looks after its inputs. True if idle."""
+        if self.analyzer is None and self._rec is None and not self.keeper.learn_allowed():
             self._close_audio()
-            self.jobs.close()
-            self.airflow_jobs.close()
-            if self.publisher is not None:
-                try:
-                    self.publisher.publish_stats(self.stats(self.clock() - t_start))
-                finally:
-                    self.publisher.close()
-        return 0
+            self._pause(min(REFERENCE_POLL_S, 0.25))
+            return True
+        return False
+
+    def _capture(self) -> tuple[list[PulseBlock], float]:
+        """The audio opened if closed, one batch read, and the time after the read. An
+        audio path silent for AUDIO_STALL_S is reopened (an unplugged card, a stalled
+        sound server): a stall must not end the daemon, nor go unnoticed."""
+        if self.audio is None:
+            self._open_audio()
+            self._last_pulse_t = self.clock()
+        assert self.audio is not None
+        # analysing: the periods of one analysis block in one wake-up (the loop's own work
+        # once a period was a quarter of this thread's CPU)
+        batch = self.analyzer.block_pulses if self.analyzer is not None else 1
+        blocks = self.audio.read_pulses(batch, timeout=0.5)
+        now = self.clock()
+        if not blocks:
+            if now - self._last_pulse_t > AUDIO_STALL_S:
+                log.warning("no audio for %.1f s; reopening the audio path",
+                            now - self._last_pulse_t)
+                self.notifier.status("no audio: reopening the device")
+                self._close_audio()
+                self.counters.audio_restarts += 1
+                self._last_pulse_t = now
+            return blocks, now
+        self._last_pulse_t = now
+        return blocks, now
+
+    def _side_paths(self, blocks: list[PulseBlock]) -> None:
+        """The capture's other readers, before the analysis (which may pause the loop):
+        the airflow window and a reference being recorded."""
+        for block in blocks:
+            self.airflow.add(block.samples, block.start_sample, block.discontinuity)
+        self._maybe_measure_airflow()
+        for block in blocks:
+            if self._rec is None:        # done (or given up) within the batch
+                break
+            self._record(block)
+
+    def _while_learning(self, blocks: list[PulseBlock], now: float) -> None:
+        """Learning a first reference: pulses flow, nothing to estimate yet; the state
+        says so (with the airflow's figures) and the watchdog is kept fed."""
+        assert self.publisher is not None
+        self.counters.pulses_processed += len(blocks)
+        self.notifier.watchdog()
+        if self._state_every.due(now):
+            self._publish_unknown()
+        if self._stats_every.due(now):
+            self.publisher.publish_stats(self.stats(now - self._t_start))
+
+    def _analyse(self, blocks: list[PulseBlock]) -> Estimate | None:
+        """The batch through the analysis; None while aligning or re-acquiring, or when
+        the capture holds no usable pulse train (then a status, and a pause before the
+        audio is reopened: retrying at once would only repeat the error)."""
+        assert self.analyzer is not None
+        try:
+            for block in blocks:
+                self.analyzer.feed(block.samples, block.start_sample)
+                self.counters.pulses_processed += 1
+        except BladesonarError as exc:
+            # e.g. no direct-coupling pulse: speaker muted, wrong device, unplugged
+            self._signal_problem(str(exc))
+            self._pause(SIGNAL_RETRY_S)
+            return None
+        return self.analyzer.estimate()  # None: not aligned yet (or after a gap)
+
+    def _took_estimate(self, estimate: Estimate, n_blocks: int, now: float) -> None:
+        """An estimate means the path works: READY once, the watchdog fed, and what the
+        learning and the fit watch keep from it (the rotation a recording saw, the
+        rotation to carry over a Forget, the fit once a second)."""
+        self._signal_problem_text = None
+        if not self._ready_sent:
+            self._ready_sent = True
+            memory.give_back_memory()         # what the start freed
+            self.notifier.ready(self._status_line(estimate))
+            log.info("running: %s", self._status_line(estimate))
+        self.notifier.watchdog()
+        if self._rec is not None:
+            self._rec.rotations[estimate.rotation or "other"] += n_blocks
+        if estimate.rotating is not None:
+            self._turning_rotation = estimate.rotation if estimate.rotating else None
+        if self._fit_sample.due(now):
+            self.keeper.sample_fit(now)
+
+    def _publish(self, estimate: Estimate, blocks: list[PulseBlock], now: float) -> None:
+        """The events, then the state on a change or when due (unknown while the
+        reference is stale), then the stats when due: an event always comes with the
+        state that follows it."""
+        assert self.publisher is not None
+        stale = self.keeper.stale
+        changed = self._events(estimate, publish=not stale)
+        if changed or self._state_every.ready(now):
+            status, detail = self._status()
+            if stale:
+                # a reference that no longer fits gives confident wrong answers
+                # (measured: a sensor moved by 20 cm): none is published
+                estimate = Estimate.unknown(
+                    f"the reference no longer fits the room: {detail}",
+                    reference=estimate.reference)
+            self.publisher.publish_state(self._with_airflow(estimate), status=status,
+                                         detail=None if status == "ok" else detail)
+            self._publish_status()    # with the state (on change only)
+            done_at = blocks[-1].captured_at     # the period that completed it
+            if done_at is not None:
+                self._latencies.append(self.clock() - done_at)
+            self.notifier.status(self._status_line(estimate))
+            self._state_every.restart(now)
+        if self._stats_every.due(now):
+            self.publisher.publish_stats(self.stats(now - self._t_start))
+            memory.give_back_memory()     # what the blocks since freed
+
+    def _shut_down(self) -> None:
+        """However the loop ended: systemd told, the device and workers closed, and a last
+        stats message before the publisher goes (its counters would be lost)."""
+        self.notifier.stopping()
+        self._close_audio()
+        self.jobs.close()
+        self.airflow_jobs.close()
+        if self.publisher is not None:
+            try:
+                self.publisher.publish_stats(self.stats(self.clock() - self._t_start))
+            finally:
+                self.publisher.close()
 
     # -- pieces --------------------------------------------------------------------------
 
