@@ -16,12 +16,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..airflow_recording import WindowFigures
 from .every import Every
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 #: Seconds of capture each measurement reads. The stage needs 8 blocks of 16 usable
 #: pulse pairs (about 4 s) to call at all; the held-out sweep's recordings were 6-15 s
@@ -142,7 +145,7 @@ class Contradiction:
 class AirflowWatch:
     """The window, when to measure it, the latest figures and the contradiction."""
 
-    def __init__(self, cfg: Any) -> None:
+    def __init__(self, cfg: Config) -> None:
         self.fs = float(cfg.audio.sample_rate)
         self.downdraft_rotation = cfg.scene.downdraft_rotation
         self.window = SampleWindow(int(round(WINDOW_S * self.fs)))

@@ -12,7 +12,7 @@ import logging
 import os
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol, TypedDict
 
 from ..config import Config
 from ..errors import BladesonarError, ReferenceMissingError
@@ -32,6 +32,15 @@ log = logging.getLogger(__name__)
 #: How often the loop looks for a reference file that is missing or invalid (also on
 #: SIGHUP), and stats the one in use to notice it replaced or deleted.
 REFERENCE_POLL_S = 2.0
+
+
+class ReferenceStatus(TypedDict):
+    """The reference's keys in the status message (docs/mqtt.md)."""
+
+    reference: str | None
+    reference_direction: str | None
+    reference_rate_hz: float | None
+    fit: float | None
 
 
 class Host(Protocol):
@@ -201,7 +210,7 @@ class ReferenceKeeper:
     def stale(self) -> bool:
         return self.fit is not None and self.fit.stale
 
-    def status_fields(self) -> dict[str, Any]:
+    def status_fields(self) -> ReferenceStatus:
         """The reference's part of the status message."""
         ref = self.reference
         fit = self.fit.fit if self.fit is not None else None

@@ -82,7 +82,7 @@ class Recording:
     next_sample: int | None = None
     restarts: int = 0
     #: rotations named by the estimates made meanwhile (cw, ccw, other)
-    rotations: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+    rotations: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)
 
     def add(self, block: PulseBlock) -> bool:
         """Append one capture block; a gap (lost samples) starts the recording afresh (a
