@@ -74,6 +74,10 @@ def test_make_publisher_chooses_by_host(tmp_path):
     pub = make_publisher(make_cfg(tmp_path, 1883))
     assert isinstance(pub, MqttPublisher)
     pub.close()  # never started: nothing to do, no error
+    # built directly, a null host is the config's error (it failed later, in paho)
+    with pytest.raises(ConfigError) as exc:
+        MqttPublisher(config.Config())
+    assert "mqtt.host" in str(exc.value) and "make_publisher" in str(exc.value)
 
 
 def test_stdout_publisher_prints_the_messages_as_json_lines():

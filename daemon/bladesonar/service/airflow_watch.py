@@ -16,11 +16,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..airflow_recording import WindowFigures
+from .every import Every
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 #: Seconds of capture each measurement reads. The stage needs 8 blocks of 16 usable
 #: pulse pairs (about 4 s) to call at all; the held-out sweep's recordings were 6-15 s
@@ -141,12 +145,12 @@ class Contradiction:
 class AirflowWatch:
     """The window, when to measure it, the latest figures and the contradiction."""
 
-    def __init__(self, cfg: Any) -> None:
+    def __init__(self, cfg: Config) -> None:
         self.fs = float(cfg.audio.sample_rate)
         self.downdraft_rotation = cfg.scene.downdraft_rotation
         self.window = SampleWindow(int(round(WINDOW_S * self.fs)))
         self.samples_seen = 0
-        self._next_due = 0.0
+        self._every = Every(EVERY_S, clock=lambda: self.now)
         self.latest: WindowFigures | None = None
         self.latest_at: float | None = None
         self.error: str | None = None
@@ -167,12 +171,12 @@ class AirflowWatch:
         """The window's samples when a measurement is due (the window full and
         EVERY_S, or EVERY_LEARNING_S before a reference, since the last), else None.
         Call :meth:`submitted` once the job is queued."""
-        if not self.window.full or self.now < self._next_due:
+        if not self.window.full or not self._every.ready():
             return None
         return self.window.samples()
 
     def submitted(self, learning: bool) -> None:
-        self._next_due = self.now + (EVERY_LEARNING_S if learning else EVERY_S)
+        self._every.restart(interval=EVERY_LEARNING_S if learning else EVERY_S)
 
     def took(self, figures: WindowFigures | None, error: str | None,
              fingerprint_rotation: str | None) -> None:

@@ -17,11 +17,14 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .. import waveform
 from ..errors import AudioDeviceError
 from .audio import BlockDecoder, CaptureRing, PulseBlock, RawPeriod, bytes_per_sample, encode
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +48,7 @@ class TxSource:
     encoded once and repeated; anything else is computed by ``waveform.pulse_train_chunk``.
     """
 
-    def __init__(self, cfg: Any) -> None:
+    def __init__(self, cfg: Config) -> None:
         self.cfg = cfg
         self.pri = int(cfg.waveform.pri_samples)
         self.fmt = cfg.audio.format
@@ -74,7 +77,7 @@ class AlsaAudio:
     #: gone (the thread ends, the daemon reopens the path); None: never (a card)
     MAX_XRUNS_IN_A_ROW: int | None = None
 
-    def __init__(self, cfg: Any) -> None:
+    def __init__(self, cfg: Config) -> None:
         self.cfg = cfg
         self.pri = int(cfg.waveform.pri_samples)
         self.fmt = cfg.audio.format

@@ -4,10 +4,16 @@ this module sits above both, so that no import runs in a circle)."""
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import AudioDeviceError
 from .audio import AudioIO
+
+if TYPE_CHECKING:
+    from ..config import Config
+    from .alsa_audio import AlsaAudio
+    from .pipewire_audio import PipeWireAudio
+    from .sim_audio import SimAudio
 
 log = logging.getLogger(__name__)
 
@@ -16,7 +22,7 @@ log = logging.getLogger(__name__)
 PATHS = {"alsa": "alsa", "pipewire": "pipewire-alsa", "sim": "sim"}
 
 
-def audio_choice(cfg: Any) -> dict[str, Any]:
+def audio_choice(cfg: Config) -> dict[str, Any]:
     """What was found and chosen: ``backend`` (the config's ``audio.backend``),
     ``server`` (the sound server that answers: ``pipewire``, ``pulseaudio``, ``none``;
     null for the simulator, which looks for none) and ``chosen`` (the backend used:
@@ -39,17 +45,17 @@ def audio_choice(cfg: Any) -> dict[str, Any]:
             "path": PATHS.get(chosen)}
 
 
-def choose_backend(cfg: Any) -> str:
+def choose_backend(cfg: Config) -> str:
     """``cfg.audio.backend``, with ``auto`` resolved (:func:`audio_choice`)."""
     return str(audio_choice(cfg)["chosen"])
 
 
-def open_audio(cfg: Any) -> AudioIO:
+def open_audio(cfg: Config) -> AudioIO:
     """The audio path ``cfg.audio.backend`` names (not started); its ``choice`` says what
     was found and chosen (:func:`audio_choice`: the status topic and ``stats`` show it)."""
     choice = audio_choice(cfg)
     backend = choice["chosen"]
-    audio: Any
+    audio: SimAudio | AlsaAudio | PipeWireAudio | None
     if backend == "sim":
         from .sim_audio import SimAudio
         audio = SimAudio(cfg)

@@ -46,7 +46,7 @@ class ReferenceJobs:
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
-        self._todo: collections.deque[tuple[str, Callable[..., Any], tuple]] = \
+        self._todo: collections.deque[tuple[str, Callable[..., Any], tuple[Any, ...]]] = \
             collections.deque()
         self._done: collections.deque[JobResult] = collections.deque()
         self._running: str | None = None

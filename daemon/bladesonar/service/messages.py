@@ -38,6 +38,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
+    from ..config import Config
     from ..live import Estimate
 
 #: Availability payloads (Home Assistant's defaults, so no payload_* keys are needed).
@@ -120,7 +121,7 @@ class Topics:
     """The discovery node id (:func:`node_id` of ``device_id``)."""
 
     @classmethod
-    def for_config(cls, cfg: Any) -> Topics:
+    def for_config(cls, cfg: Config) -> Topics:
         prefix = cfg.mqtt.topic_prefix.strip("/")
         return cls(base=f"{prefix}/{cfg.device_id}",
                    discovery_prefix=cfg.mqtt.discovery_prefix.strip("/"),
@@ -184,6 +185,12 @@ class Topics:
 
 
 # -- JSON --------------------------------------------------------------------------------
+
+
+def clean_dict(fields: Mapping[str, Any]) -> dict[str, Any]:
+    """:func:`clean` for a message's top level, which stays a dict."""
+    out: dict[str, Any] = clean(dict(fields))
+    return out
 
 
 def clean(value: Any, digits: int = FLOAT_DIGITS) -> Any:
@@ -251,7 +258,7 @@ def state_payload(estimate: Estimate | Mapping[str, Any] | None, t: float | None
         if k not in out and k != "time":
             out[k] = v
     out["time"] = utc_iso(t)
-    return clean(out)
+    return clean_dict(out)
 
 
 class RunningHold:
@@ -293,13 +300,13 @@ def status_payload(fields: Mapping[str, Any]) -> dict[str, Any]:
     out = {k: fields.get(k) for k in STATUS_KEYS}
     if out["status"] not in STATUSES:
         raise ValueError(f"status {out['status']!r}: use one of {', '.join(STATUSES)}")
-    return clean(out)
+    return clean_dict(out)
 
 
 def event_payload(kind: str, details: Mapping[str, Any],
                   t: float | None = None) -> dict[str, Any]:
     """An event message: ``{"kind": ..., "time": ..., "details": {...}}``."""
-    return clean({"kind": kind, "time": utc_iso(t), "details": dict(details)})
+    return clean_dict({"kind": kind, "time": utc_iso(t), "details": dict(details)})
 
 
 def stats_payload(stats: Mapping[str, Any], t: float | None = None,
@@ -309,7 +316,7 @@ def stats_payload(stats: Mapping[str, Any], t: float | None = None,
     for k, v in (extra or {}).items():
         out.setdefault(k, v)
     out["time"] = utc_iso(t)
-    return clean(out)
+    return clean_dict(out)
 
 
 def availability_message(topics: Topics, online: bool) -> Message:
@@ -444,9 +451,11 @@ def support_url() -> str | None:
         label, _, url = entry.partition(",")
         if label.strip().lower() in ("support", "issues", "homepage", "source") \
                 and url.strip().startswith("https://"):
-            return url.strip()
+            return str(url.strip())
     home = md.get_all("Home-page", [None])[0]
-    return home if home and home.startswith("https://") else None
+    if isinstance(home, str) and home.startswith("https://"):
+        return home
+    return None
 
 
 def _none_or(key: str, expr: str) -> str:
@@ -646,7 +655,7 @@ _ENTITIES: tuple[tuple[str, str, str, dict[str, Any]], ...] = (
         "icon": "mdi:cpu-64-bit"}),
 )
 
-def device_block(cfg: Any) -> dict[str, Any]:
+def device_block(cfg: Config) -> dict[str, Any]:
     """The Home Assistant device all entities belong to; its name is ``mqtt.device_name``
     or one made from ``device_id``."""
     name = getattr(cfg.mqtt, "device_name", None) or friendly_name(cfg.device_id)
@@ -664,7 +673,7 @@ def origin_block() -> dict[str, Any]:
     return out
 
 
-def components(cfg: Any, topics: Topics | None = None) -> dict[str, dict[str, Any]]:
+def components(cfg: Config, topics: Topics | None = None) -> dict[str, dict[str, Any]]:
     """The device's components for device-based discovery: {object_id: config with its
     platform ``p``}. Entities, then one device trigger per motion event
     (``motion_<kind>``).
@@ -711,12 +720,12 @@ def components(cfg: Any, topics: Topics | None = None) -> dict[str, dict[str, An
     return out
 
 
-def device_config(cfg: Any, topics: Topics | None = None) -> dict[str, Any]:
+def device_config(cfg: Config, topics: Topics | None = None) -> dict[str, Any]:
     """The device-based discovery payload: ``dev``, ``o`` (origin) and ``cmps``."""
     return {"dev": device_block(cfg), "o": origin_block(), "cmps": components(cfg, topics)}
 
 
-def discovery_messages(cfg: Any, topics: Topics | None = None) -> list[Message]:
+def discovery_messages(cfg: Config, topics: Topics | None = None) -> list[Message]:
     """Home Assistant discovery: one retained device-based config at
     ``<discovery_prefix>/device/<node_id>/config``."""
     topics = topics or Topics.for_config(cfg)
@@ -738,7 +747,7 @@ def is_legacy_config(topics: Topics, topic: str) -> bool:
         and parts[0] != "device"
 
 
-def migration_messages(cfg: Any, found: list[str],
+def migration_messages(cfg: Config, found: list[str],
                        topics: Topics | None = None) -> list[Message]:
     """Home Assistant's path from per-entity configs (``found``: their topics, as
     retained on the broker) to the device-based one, without a duplicate or an orphan:
@@ -761,7 +770,7 @@ def migration_messages(cfg: Any, found: list[str],
             *(Message(t, None, qos=1, retain=True) for t in sorted(found))]
 
 
-def retire_messages(cfg: Any, topics: Topics | None = None) -> list[Message]:
+def retire_messages(cfg: Config, topics: Topics | None = None) -> list[Message]:
     """What removes the device from Home Assistant and the broker for good: an empty
     device config (Home Assistant deletes the device and its entities), and empty
     retained state, status, stats and availability."""

@@ -18,7 +18,7 @@ import logging
 import os
 import re
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from ..errors import AudioDeviceError
 from . import sound_server
 from .alsa_audio import AlsaAudio, _alsaaudio
 from .audio import PulseBlock
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 log = logging.getLogger(__name__)
 
@@ -139,7 +142,7 @@ class PipeWireAudio(AlsaAudio):
     #: a server that went away makes every read and write fail at once with -EPIPE
     MAX_XRUNS_IN_A_ROW = 20
 
-    def __init__(self, cfg: Any, server: sound_server.SoundServer | None = None) -> None:
+    def __init__(self, cfg: Config, server: sound_server.SoundServer | None = None) -> None:
         super().__init__(cfg)
         self.server = server
         self.graph: dict[str, Any] = {}

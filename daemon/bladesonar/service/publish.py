@@ -57,6 +57,7 @@ from .messages import (
 )
 
 if TYPE_CHECKING:
+    from ..config import Config
     from ..live import Estimate
 
 log = logging.getLogger(__name__)
@@ -104,7 +105,7 @@ class Publisher(Protocol):
     def close(self) -> None: ...
 
 
-def make_publisher(cfg: Any) -> Publisher:
+def make_publisher(cfg: Config) -> Publisher:
     """JSON lines on stdout when ``mqtt.host`` is null, else an MQTT publisher (not started).
 
     Raises :class:`ConfigError` for an unreadable password or TLS file.
@@ -117,7 +118,7 @@ def make_publisher(cfg: Any) -> Publisher:
 # -- credentials and TLS -----------------------------------------------------------------
 
 
-def read_password(cfg: Any) -> str | None:
+def read_password(cfg: Config) -> str | None:
     """The broker password from ``mqtt.password_file`` (first line) or ``mqtt.password_env``.
 
     Errors name the key and the fix, never the password.
@@ -167,7 +168,7 @@ def read_password(cfg: Any) -> str | None:
     return None
 
 
-def tls_files(cfg: Any) -> dict[str, str]:
+def tls_files(cfg: Config) -> dict[str, str]:
     """``ca_certs``/``certfile``/``keyfile`` for ``tls_set``, checked readable, resolved."""
     m = cfg.mqtt
     files: dict[str, str] = {}
@@ -298,7 +299,7 @@ class MqttPublisher:
         How long ``close`` waits for the broker to acknowledge ``offline``, s.
     """
 
-    def __init__(self, cfg: Any, *, reconnect_min_delay: float = 1.0,
+    def __init__(self, cfg: Config, *, reconnect_min_delay: float = 1.0,
                  reconnect_max_delay: float = 60.0, ha_delay: tuple[float, float] = (1.0, 5.0),
                  close_timeout: float = 2.0) -> None:
         try:
@@ -312,9 +313,13 @@ class MqttPublisher:
                               "bladesonar[mqtt], or set mqtt.host: null to print the messages "
                               "as JSON lines")
         m = cfg.mqtt
+        if m.host is None:
+            raise ConfigError("mqtt.host", m.host, "give the broker's host name, or use "
+                              "make_publisher, which prints JSON lines for a null host")
         self.cfg = cfg
         self.topics = Topics.for_config(cfg)
-        self.host, self.port = m.host, m.port
+        self.host: str = m.host
+        self.port = m.port
         self.client_id = m.client_id or f"bladesonar-{cfg.device_id}"
         self.ha_delay = ha_delay
         self.close_timeout = close_timeout
@@ -685,7 +690,7 @@ class MqttPublisher:
             log.exception("MQTT: republishing for Home Assistant failed")
 
 
-def retire(cfg: Any, timeout: float = 10.0) -> list[str]:
+def retire(cfg: Config, timeout: float = 10.0) -> list[str]:
     """Remove the device from Home Assistant and its retained topics from the broker:
     the device config, any per-entity config of an earlier version, state, status,
     stats and availability (an empty retained payload each). Run with the daemon
@@ -777,7 +782,7 @@ class StdoutPublisher:
     A closed stdout (the reader went away) is logged once; the daemon keeps running.
     """
 
-    def __init__(self, cfg: Any, stream: IO[str] | None = None) -> None:
+    def __init__(self, cfg: Config, stream: IO[str] | None = None) -> None:
         self.topics = Topics.for_config(cfg)
         self._stream = stream
         self._broken = False

@@ -21,25 +21,23 @@ import numpy as np
 
 from .. import config as config_mod
 from ..dsp.stats import median
-from ..errors import BladesonarError, ReferenceMissingError
+from ..errors import BladesonarError
 from ..io.config_file import load_config
 from ..live import Estimate, LiveAnalyzer
-from ..reference_fit import FitWatch
 from . import learner, memory, settings_store
-from .airflow_watch import AirflowWatch, Contradiction
+from .airflow_watch import AirflowWatch
 from .audio import AudioIO, PulseBlock
+from .every import Every
 from .messages import Command, utc_iso
 from .notify import Notifier, NullNotifier
 from .publish import Publisher
+from .reference_keeper import REFERENCE_POLL_S, ReferenceKeeper
 
 if TYPE_CHECKING:
     from ..reference_build import Reference
 
 log = logging.getLogger(__name__)
 
-#: How often the loop looks for a reference file that is missing or invalid (also on
-#: SIGHUP), and stats the one in use to notice it replaced or deleted.
-REFERENCE_POLL_S = 2.0
 #: Seconds without a captured pulse before the audio path is reopened.
 AUDIO_STALL_S = 5.0
 #: Wait before reopening the audio path after a capture without a usable pulse train.
@@ -69,8 +67,6 @@ class Counters:
     reloads: int = 0
     reload_errors: int = 0
     signal_errors: int = 0
-    references_learned: int = 0
-    learn_failures: int = 0
 
 
 @dataclasses.dataclass
@@ -86,7 +82,7 @@ class Recording:
     next_sample: int | None = None
     restarts: int = 0
     #: rotations named by the estimates made meanwhile (cw, ccw, other)
-    rotations: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+    rotations: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)
 
     def add(self, block: PulseBlock) -> bool:
         """Append one capture block; a gap (lost samples) starts the recording afresh (a
@@ -142,8 +138,6 @@ class Service:
         self.config_path = config_path
         self.audio_factory = audio_factory
         self.publisher_factory = publisher_factory
-        self.analyzer_factory = analyzer_factory
-        self.reference_loader = reference_loader
         self.notifier = notifier
         self.max_seconds = max_seconds
         self.clock = clock
@@ -159,48 +153,45 @@ class Service:
         self._sig_reload = False
         self.publisher: Publisher | None = None
         self.audio: AudioIO | None = None
-        self.analyzer: LiveAnalyzer | None = None
-        self.reference: Reference | None = None
         self._ready_sent = False
         self._last_state: Estimate | None = None
-        self._reference_problem: str | None = None
-        self._reference_missing = False
-        #: stat signature of the reference file when it was last read (None: absent)
-        self._reference_sig: tuple | None = None
-        self._next_reference_check = 0.0
-        self._next_reference_try = 0.0
         self._signal_problem_text: str | None = None
         self._cpu_mark = (0.0, 0.0)
+        # the loop's clocks (set by _start)
+        self._t_start = 0.0
+        self._last_pulse_t = 0.0
+        self._state_every = Every(lambda: self.cfg.mqtt.publish_interval_s, clock=clock)
+        self._stats_every = Every(lambda: self.cfg.mqtt.stats_interval_s, clock=clock)
         self._started_at = utc_iso()
         #: end of the captured period -> its state handed to the publisher, seconds
         self._latencies: list[float] = []
         # the reference managed live (learning, commands, fit)
         self.jobs = learner.ReferenceJobs()
         self._rec: Recording | None = None
-        self._learn_next_try = 0.0
-        self._learn_wait = cfg.reference.retry_s
-        self._learn_failure: str | None = None
-        #: a direction chosen while there was no reference, or the rotation the fan had
-        #: when its reference was forgotten: given to the next one learned
-        self._pending_direction: str | None = None
         #: cw/ccw of the last estimate that saw the fan turn (None once it stopped)
         self._turning_rotation: str | None = None
-        #: why the reference is being learned, for the status detail (a Forget)
-        self._learn_note: str | None = None
         self._learn_why = "command"
         self._job_direction = "unknown"
-        self.fit: FitWatch | None = None
-        self._next_fit = 0.0
+        self._fit_sample = Every(FIT_SAMPLE_S, clock=clock)
         #: the live airflow (its own worker: a learn job must not hold it up, nor it one)
         self.airflow = AirflowWatch(cfg)
         self.airflow_jobs = learner.ReferenceJobs()
         #: the rotation the fingerprint published when the airflow window was taken
         self._airflow_fp_rotation: str | None = None
-        #: the motion meter's verdict at the last fit sample (the fan moves)
-        self._moving = False
-        self._stale_reported = False
         self._status_sent: dict[str, Any] | None = None
         self._status_since = utc_iso()
+        #: the reference: load, file watch, fit, learning's back-off, what is published
+        self.keeper = ReferenceKeeper(self, reference_loader=reference_loader,
+                                      analyzer_factory=analyzer_factory, notifier=notifier,
+                                      clock=clock)
+
+    @property
+    def analyzer(self) -> LiveAnalyzer | None:
+        return self.keeper.analyzer
+
+    @property
+    def reference(self) -> Reference | None:
+        return self.keeper.reference
 
     # -- signals -------------------------------------------------------------------------
 
@@ -243,10 +234,43 @@ class Service:
     # -- the loop ------------------------------------------------------------------------
 
     def run(self) -> int:
+        """``bladesonar run``'s loop: start, then per wake-up look after what the other
+        threads and the files brought, capture a batch, and either learn from it or
+        analyse and publish it; shut down whatever way the loop ends."""
+        self._start()
+        try:
+            while not self._stopping():
+                now = self.clock()
+                if self._time_is_up(now):
+                    break
+                self._look_after(now)
+                if self._idle():
+                    continue
+                blocks, now = self._capture()
+                if not blocks:
+                    continue
+                self._side_paths(blocks)
+                if self.analyzer is None:
+                    self._while_learning(blocks, now)
+                    continue
+                estimate = self._analyse(blocks)
+                if estimate is None:
+                    continue
+                self._took_estimate(estimate, len(blocks), now)
+                self._publish(estimate, blocks, now)
+        finally:
+            self._shut_down()
+        return 0
+
+    # -- the loop's phases -----------------------------------------------------------------
+
+    def _start(self) -> None:
+        """Publish "starting" and connect before anything slow: Home Assistant must not
+        show a previous run's values as current while the reference loads."""
         # before the reference and the warm-up allocate: a fixed mmap threshold keeps the
         # heap from holding what the start freed (service/memory.py)
         memory.fix_mmap_threshold()
-        t_start = self.clock()
+        self._t_start = self.clock()
         t = os.times()
         self._cpu_mark = (t.user + t.system, 0.0)   # start-up (imports) is not steady state
         self.publisher = self.publisher_factory(self.cfg)
@@ -257,134 +281,162 @@ class Service:
         self._publish_status()
         self.publisher.start()
         self.notifier.status("starting")
-        next_state = next_stats = t_start
-        last_pulse_t = t_start
-        try:
-            while not self._stopping():
-                now = self.clock()
-                if self.max_seconds is not None and now - t_start >= self.max_seconds:
-                    log.info("ran for %.1f s as asked (--seconds); stopping", self.max_seconds)
-                    break
-                if self._sig_reload or self._reload.is_set():
-                    self._sig_reload = False     # signals until here join this reload
-                    self._reload.clear()
-                    self._do_reload()
-                self._take_job_results()
-                self._take_airflow()
-                self._take_commands()
-                if self.analyzer is not None and now >= self._next_reference_check \
-                        and not self.jobs.busy:
-                    self._next_reference_check = now + REFERENCE_POLL_S
-                    if self._reference_signature() != self._reference_sig:
-                        log.info("the reference file changed; reading it again")
-                        self.analyzer = None
-                        self._next_reference_try = 0.0
-                if self.analyzer is None and now >= self._next_reference_try \
-                        and not self.jobs.busy:
-                    self._next_reference_try = now + REFERENCE_POLL_S
-                    self._load_reference()
-                self._maybe_learn(now)
-                self._publish_status()
-                if self.analyzer is None and self._rec is None and not self._learn_allowed():
-                    self._close_audio()     # nothing reads it while we wait: no xruns
-                    self._pause(min(REFERENCE_POLL_S, 0.25))
-                    continue
-                if self.audio is None:
-                    self._open_audio()
-                    last_pulse_t = self.clock()
-                assert self.audio is not None
-                # analysing: the periods of one analysis block in one wake-up (the loop's
-                # own work once a period was a quarter of this thread's CPU)
-                batch = self.analyzer.block_pulses if self.analyzer is not None else 1
-                blocks = self.audio.read_pulses(batch, timeout=0.5)
-                now = self.clock()
-                if not blocks:
-                    if now - last_pulse_t > AUDIO_STALL_S:
-                        log.warning("no audio for %.1f s; reopening the audio path",
-                                    now - last_pulse_t)
-                        self.notifier.status("no audio: reopening the device")
-                        self._close_audio()
-                        self.counters.audio_restarts += 1
-                        last_pulse_t = now
-                    continue
-                last_pulse_t = now
-                for block in blocks:
-                    self.airflow.add(block.samples, block.start_sample, block.discontinuity)
-                self._maybe_measure_airflow()
-                for block in blocks:
-                    if self._rec is None:        # done (or given up) within the batch
-                        break
-                    self._record(block)
-                if self.analyzer is None:
-                    # learning a first reference: pulses flow, nothing to estimate yet
-                    self.counters.pulses_processed += len(blocks)
-                    self.notifier.watchdog()
-                    if now >= next_state:
-                        self._publish_unknown()
-                        next_state = now + self.cfg.mqtt.publish_interval_s
-                    if now >= next_stats:
-                        self.publisher.publish_stats(self.stats(now - t_start))
-                        next_stats = now + self.cfg.mqtt.stats_interval_s
-                    continue
-                try:
-                    for block in blocks:
-                        self.analyzer.feed(block.samples, block.start_sample)
-                        self.counters.pulses_processed += 1
-                except BladesonarError as exc:
-                    # e.g. no direct-coupling pulse: speaker muted, wrong device, unplugged
-                    self._signal_problem(str(exc))
-                    self._pause(SIGNAL_RETRY_S)
-                    continue
-                estimate = self.analyzer.estimate()
-                if estimate is None:  # not aligned yet (or re-acquiring after a gap)
-                    continue
-                self._signal_problem_text = None
-                if not self._ready_sent:
-                    self._ready_sent = True
-                    memory.give_back_memory()         # what the start freed
-                    self.notifier.ready(self._status_line(estimate))
-                    log.info("running: %s", self._status_line(estimate))
-                self.notifier.watchdog()
-                if self._rec is not None:
-                    self._rec.rotations[estimate.rotation or "other"] += len(blocks)
-                if estimate.rotating is not None:
-                    self._turning_rotation = estimate.rotation if estimate.rotating else None
-                if now >= self._next_fit:
-                    self._next_fit = now + FIT_SAMPLE_S
-                    self._sample_fit(now)
-                stale = self.fit is not None and self.fit.stale
-                changed = self._events(estimate, publish=not stale)
-                if changed or now >= next_state:
-                    status, detail = self._status()
-                    if stale:
-                        # a reference that no longer fits gives confident wrong answers
-                        # (measured: a sensor moved by 20 cm): none is published
-                        estimate = Estimate.unknown(
-                            f"the reference no longer fits the room: {detail}",
-                            reference=estimate.reference)
-                    self.publisher.publish_state(self._with_airflow(estimate), status=status,
-                                                 detail=None if status == "ok" else detail)
-                    self._publish_status()    # with the state (on change only)
-                    done_at = blocks[-1].captured_at     # the period that completed it
-                    if done_at is not None:
-                        self._latencies.append(self.clock() - done_at)
-                    self.notifier.status(self._status_line(estimate))
-                    next_state = now + self.cfg.mqtt.publish_interval_s
-                if now >= next_stats:
-                    self.publisher.publish_stats(self.stats(now - t_start))
-                    next_stats = now + self.cfg.mqtt.stats_interval_s
-                    memory.give_back_memory()     # what the blocks since freed
-        finally:
-            self.notifier.stopping()
+        self._state_every = Every(lambda: self.cfg.mqtt.publish_interval_s, clock=self.clock)
+        self._stats_every = Every(lambda: self.cfg.mqtt.stats_interval_s, clock=self.clock)
+        self._last_pulse_t = self._t_start
+
+    def _time_is_up(self, now: float) -> bool:
+        """``--seconds``: the tests and benchmarks run the real loop for a set time."""
+        if self.max_seconds is not None and now - self._t_start >= self.max_seconds:
+            log.info("ran for %.1f s as asked (--seconds); stopping", self.max_seconds)
+            return True
+        return False
+
+    def _look_after(self, now: float) -> None:
+        """Between captures, in this one thread: a reload, the workers' results, the
+        commands, the reference file and whether to learn; then the status if it changed.
+        Only this thread changes state, so none of it needs a lock."""
+        if self._sig_reload or self._reload.is_set():
+            self._sig_reload = False     # signals until here join this reload
+            self._reload.clear()
+            self._do_reload()
+        self._take_job_results()
+        self._take_airflow()
+        self._take_commands()
+        if self.keeper.poll(now, busy=bool(self.jobs.busy)):
+            self._last_state = None
+        self._maybe_learn(now)
+        self._publish_status()
+
+    def _idle(self) -> bool:
+        """No reference and none to learn: the audio is closed while waiting (nothing
+        would read it: xruns) and the loop only looks after its inputs. True if idle."""
+        if self.analyzer is None and self._rec is None and not self.keeper.learn_allowed():
             self._close_audio()
-            self.jobs.close()
-            self.airflow_jobs.close()
-            if self.publisher is not None:
-                try:
-                    self.publisher.publish_stats(self.stats(self.clock() - t_start))
-                finally:
-                    self.publisher.close()
-        return 0
+            self._pause(min(REFERENCE_POLL_S, 0.25))
+            return True
+        return False
+
+    def _capture(self) -> tuple[list[PulseBlock], float]:
+        """The audio opened if closed, one batch read, and the time after the read. An
+        audio path silent for AUDIO_STALL_S is reopened (an unplugged card, a stalled
+        sound server): a stall must not end the daemon, nor go unnoticed."""
+        if self.audio is None:
+            self._open_audio()
+            self._last_pulse_t = self.clock()
+        assert self.audio is not None
+        # analysing: the periods of one analysis block in one wake-up (the loop's own work
+        # once a period was a quarter of this thread's CPU)
+        batch = self.analyzer.block_pulses if self.analyzer is not None else 1
+        blocks = self.audio.read_pulses(batch, timeout=0.5)
+        now = self.clock()
+        if not blocks:
+            if now - self._last_pulse_t > AUDIO_STALL_S:
+                log.warning("no audio for %.1f s; reopening the audio path",
+                            now - self._last_pulse_t)
+                self.notifier.status("no audio: reopening the device")
+                self._close_audio()
+                self.counters.audio_restarts += 1
+                self._last_pulse_t = now
+            return blocks, now
+        self._last_pulse_t = now
+        return blocks, now
+
+    def _side_paths(self, blocks: list[PulseBlock]) -> None:
+        """The capture's other readers, before the analysis (which may pause the loop):
+        the airflow window and a reference being recorded."""
+        for block in blocks:
+            self.airflow.add(block.samples, block.start_sample, block.discontinuity)
+        self._maybe_measure_airflow()
+        for block in blocks:
+            if self._rec is None:        # done (or given up) within the batch
+                break
+            self._record(block)
+
+    def _while_learning(self, blocks: list[PulseBlock], now: float) -> None:
+        """Learning a first reference: pulses flow, nothing to estimate yet; the state
+        says so (with the airflow's figures) and the watchdog is kept fed."""
+        assert self.publisher is not None
+        self.counters.pulses_processed += len(blocks)
+        self.notifier.watchdog()
+        if self._state_every.due(now):
+            self._publish_unknown()
+        if self._stats_every.due(now):
+            self.publisher.publish_stats(self.stats(now - self._t_start))
+
+    def _analyse(self, blocks: list[PulseBlock]) -> Estimate | None:
+        """The batch through the analysis; None while aligning or re-acquiring, or when
+        the capture holds no usable pulse train (then a status, and a pause before the
+        audio is reopened: retrying at once would only repeat the error)."""
+        assert self.analyzer is not None
+        try:
+            for block in blocks:
+                self.analyzer.feed(block.samples, block.start_sample)
+                self.counters.pulses_processed += 1
+        except BladesonarError as exc:
+            # e.g. no direct-coupling pulse: speaker muted, wrong device, unplugged
+            self._signal_problem(str(exc))
+            self._pause(SIGNAL_RETRY_S)
+            return None
+        return self.analyzer.estimate()  # None: not aligned yet (or after a gap)
+
+    def _took_estimate(self, estimate: Estimate, n_blocks: int, now: float) -> None:
+        """An estimate means the path works: READY once, the watchdog fed, and what the
+        learning and the fit watch keep from it (the rotation a recording saw, the
+        rotation to carry over a Forget, the fit once a second)."""
+        self._signal_problem_text = None
+        if not self._ready_sent:
+            self._ready_sent = True
+            memory.give_back_memory()         # what the start freed
+            self.notifier.ready(self._status_line(estimate))
+            log.info("running: %s", self._status_line(estimate))
+        self.notifier.watchdog()
+        if self._rec is not None:
+            self._rec.rotations[estimate.rotation or "other"] += n_blocks
+        if estimate.rotating is not None:
+            self._turning_rotation = estimate.rotation if estimate.rotating else None
+        if self._fit_sample.due(now):
+            self.keeper.sample_fit(now)
+
+    def _publish(self, estimate: Estimate, blocks: list[PulseBlock], now: float) -> None:
+        """The events, then the state on a change or when due (unknown while the
+        reference is stale), then the stats when due: an event always comes with the
+        state that follows it."""
+        assert self.publisher is not None
+        stale = self.keeper.stale
+        changed = self._events(estimate, publish=not stale)
+        if changed or self._state_every.ready(now):
+            status, detail = self._status()
+            if stale:
+                # a reference that no longer fits gives confident wrong answers
+                # (measured: a sensor moved by 20 cm): none is published
+                estimate = Estimate.unknown(
+                    f"the reference no longer fits the room: {detail}",
+                    reference=estimate.reference)
+            self.publisher.publish_state(self._with_airflow(estimate), status=status,
+                                         detail=None if status == "ok" else detail)
+            self._publish_status()    # with the state (on change only)
+            done_at = blocks[-1].captured_at     # the period that completed it
+            if done_at is not None:
+                self._latencies.append(self.clock() - done_at)
+            self.notifier.status(self._status_line(estimate))
+            self._state_every.restart(now)
+        if self._stats_every.due(now):
+            self.publisher.publish_stats(self.stats(now - self._t_start))
+            memory.give_back_memory()     # what the blocks since freed
+
+    def _shut_down(self) -> None:
+        """However the loop ended: systemd told, the device and workers closed, and a last
+        stats message before the publisher goes (its counters would be lost)."""
+        self.notifier.stopping()
+        self._close_audio()
+        self.jobs.close()
+        self.airflow_jobs.close()
+        if self.publisher is not None:
+            try:
+                self.publisher.publish_stats(self.stats(self.clock() - self._t_start))
+            finally:
+                self.publisher.close()
 
     # -- pieces --------------------------------------------------------------------------
 
@@ -480,76 +532,12 @@ class Service:
         self._close_audio()
         self._last_state = None
 
-    def _reference_signature(self) -> tuple | None:
-        """(device, inode, size, mtime) of the reference file, None if absent: a cheap
-        stat that tells a replaced or deleted reference from the one in use."""
-        try:
-            st = os.stat(self.cfg.reference_path)
-        except OSError:
-            return None
-        return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
-
-    def _load_reference(self) -> bool:
-        """Load and check the reference; a missing or invalid one is a published status
-        (never an exit: under systemd that would be a restart loop) and is retried when
-        the file changes or on SIGHUP."""
-        assert self.publisher is not None
-        sig = self._reference_signature()
-        if self._reference_problem is not None and sig == self._reference_sig:
-            return False    # same file as the failed attempt: nothing new to read
-        self._reference_sig = sig
-        try:
-            ref = self.reference_loader(self.cfg)
-            analyzer = self.analyzer_factory(self.cfg, ref)
-        except Exception as exc:  # noqa: BLE001 - a bad reference must not stop the daemon
-            missing = isinstance(exc, ReferenceMissingError)
-            if not isinstance(exc, BladesonarError):
-                log.exception("the reference could not be used (a bug: please report it)")
-            problem = str(exc) or type(exc).__name__
-            self.reference = None
-            self.analyzer = None
-            self.fit = None
-            if problem != self._reference_problem:
-                self._reference_problem = problem
-                self._reference_missing = missing
-                if self._learn_allowed():
-                    # the daemon learns one itself: no advice to make one by hand
-                    problem = problem.split("; make one")[0]
-                    self._reference_problem = problem
-                    log.info("%s; learning one from the turning fan (reference.%s)",
-                             problem, "auto_learn" if missing else "auto_relearn")
-                    self.notifier.status("learning a reference from the turning fan")
-                else:
-                    log.error("%s", problem)
-                    self.notifier.status(f"waiting for a reference: {problem}" if missing
-                                         else f"reference invalid: {problem}")
-                status = "reference_missing" if missing else "reference_invalid"
-                self.publisher.publish_event(status, detail=problem)
-                self._publish_status()
-                self._publish_unknown()
-            return False
-        self._reference_problem = None
-        self._reference_missing = False
-        self.reference = ref
-        self.analyzer = analyzer
-        self._last_state = None
-        q = float(ref.meta.get("quality") or 0.0)
-        r = self.cfg.reference
-        self.fit = FitWatch(q, stale_fit=r.stale_fit, span_s=r.stale_after_s) if q > 0 \
-            else None
-        self._stale_reported = False
-        self.airflow.contradiction = Contradiction()     # judged against this one afresh
-        if self._pending_direction is not None \
-                and ref.meta.get("direction") == self._pending_direction:
-            self._pending_direction = None
-        log.info("reference loaded: %s (%.3f Hz, %s)", ref.meta.get("id"),
-                 ref.meta.get("rate_hz", float("nan")), ref.meta.get("direction"))
-        return True
+    def _load_reference(self) -> None:
+        if self.keeper.load():
+            self._last_state = None      # a new analysis: its first estimate is published
 
     def _open_audio(self) -> None:
-        # a new capture stream is a new time base: align and warm up from scratch
-        if self.reference is not None:
-            self.analyzer = self.analyzer_factory(self.cfg, self.reference)
+        self.keeper.new_analyzer()
         self.audio = self.audio_factory(self.cfg)
         # what was found and chosen (backends.audio_choice), for the status topic; kept
         # while the path is closed
@@ -575,36 +563,35 @@ class Service:
 
     def _status(self) -> tuple[str, str | None]:
         """(status, detail) as published: see messages.STATUSES."""
-        note = f"{self._learn_note}; " if self._learn_note else ""
+        k = self.keeper
+        note = f"{k.learn_note}; " if k.learn_note else ""
         if self._rec is not None or self.jobs.busy == "learn":
             if self._rec is not None:
                 return "learning", (f"{note}recording {self.cfg.reference.learn_seconds:g} s "
                                     "of the turning fan for a reference")
             return "learning", f"{note}folding the recording into a reference"
-        if self.reference is None:
-            if self._reference_problem is None:
+        if k.reference is None:
+            if k.problem is None:
                 return "starting", None
-            if self._learn_allowed():
-                if self._learn_failure is not None:
+            if k.learn_allowed():
+                if k.learn_failure is not None:
                     return "learning", (f"{note}waiting for a steady rotation to learn a "
-                                        f"reference (last try: {self._learn_failure})")
+                                        f"reference (last try: {k.learn_failure})")
                 return "learning", f"{note}waiting to record the turning fan for a reference"
-            return ("reference_missing" if self._reference_missing else "reference_invalid",
-                    self._reference_problem)
+            return ("reference_missing" if k.missing else "reference_invalid", k.problem)
         if self._signal_problem_text is not None:
             return "no_signal", self._signal_problem_text
-        if self.fit is not None and self.fit.stale:
-            f = self.fit.fit
+        if k.fit is not None and k.fit.stale:
+            f = k.fit.fit
             return "reference_stale", (
                 f"the reference fits the room at {f:.2f} of what it promised over the last "
-                f"{self.fit.moving_s:.0f} s of turning (stale below "
+                f"{k.fit.moving_s:.0f} s of turning (stale below "
                 f"{self.cfg.reference.stale_fit:g}): the device, the fan or the room changed; "
                 "learn a new reference")
-        contra = self.airflow.contradiction_detail(self.reference.meta.get("direction"))
+        contra = self.airflow.contradiction_detail(k.reference.meta.get("direction"))
         if contra is not None:
             return "airflow_contradiction", contra
-        if self._last_state is None and not self._ready_sent \
-                and not self.counters.references_learned:
+        if self._last_state is None and not self._ready_sent and not k.learned_count:
             return "starting", None
         return "ok", None
 
@@ -613,15 +600,9 @@ class Service:
         if self.publisher is None:
             return
         status, detail = self._status()
-        ref = self.reference
-        fit = self.fit.fit if self.fit is not None else None
         fields: dict[str, Any] = {
             "status": status, "detail": detail,
-            "reference": ref.meta.get("id") if ref is not None else None,
-            "reference_direction": (ref.meta.get("direction") if ref is not None
-                                    else self._pending_direction),
-            "reference_rate_hz": ref.meta.get("rate_hz") if ref is not None else None,
-            "fit": None if fit is None else round(fit, 2),
+            **self.keeper.status_fields(),      # reference, its direction and rate, fit
             "learning": (self._rec.why if self._rec is not None else
                          self._learn_why if self.jobs.busy == "learn" else None),
             "settings": settings_store.current(self.cfg),
@@ -640,30 +621,13 @@ class Service:
         self._status_sent = fields
         self.publisher.publish_status(fields)
 
-    def _learn_allowed(self) -> bool:
-        """Whether the daemon learns by itself now (no reference, or a bad one)."""
-        r = self.cfg.reference
-        if self.reference is None:
-            if self._reference_problem is None:
-                return False
-            return r.auto_learn if self._reference_missing else r.auto_relearn
-        return r.auto_relearn and self.fit is not None and self.fit.stale
-
     def _maybe_learn(self, now: float) -> None:
         """Zero-config: start recording a reference when one is needed and due."""
-        if self._rec is not None or self.jobs.busy or now < self._learn_next_try:
+        if self._rec is not None or self.jobs.busy:
             return
-        if not self._learn_allowed():
-            return
-        if self.reference is not None and not self._moving:
-            # re-learning a stale reference: only from a fan seen moving now (the motion
-            # meter: the stale reference's own answers may well be unknown)
-            return
-        if self.reference is not None:
-            f = self.fit.fit if self.fit is not None else None
-            self._learn_note = ("the reference no longer fits the room"
-                                + (f" (fit {f:.2f})" if f is not None else ""))
-        self._start_recording("auto" if self.reference is None else "relearn")
+        why = self.keeper.learn_due(now)
+        if why is not None:
+            self._start_recording(why)
 
     def _start_recording(self, why: str) -> None:
         need = int(round(self.cfg.reference.learn_seconds * self.cfg.audio.sample_rate))
@@ -675,18 +639,17 @@ class Service:
     def _record(self, block: PulseBlock) -> None:
         rec = self._rec
         assert rec is not None
-        if rec.why == "relearn" and not self._moving:
+        if rec.why == "relearn" and not self.keeper.moving:
             log.info("the fan stopped while recording a reference; trying again later")
             self._rec = None
-            self._learn_next_try = self.clock() + self._learn_wait
+            self.keeper.retry_later()
             return
         if not rec.add(block):
             return
-        ref_known = self.reference is not None and \
-            self.reference.meta.get("direction") in ("cw", "ccw")
+        ref_known = self.keeper.direction_known()
         # a direction a person chose wins; else the airflow measured on the recording
         # (learner.learn), else what the estimates against the old reference said
-        direction = self._pending_direction or "unknown"
+        direction = self.keeper.pending_direction or "unknown"
         x = rec.samples()
         self._rec = None
         if not self.jobs.submit("learn", learner.learn, x, self.cfg, direction,
@@ -720,14 +683,14 @@ class Service:
         elif cmd.name == "direction":
             d = cmd.value or "unknown"
             if self.reference is None:
-                self._pending_direction = d if d != "unknown" else None
+                self.keeper.pending_direction = d if d != "unknown" else None
                 log.info("reference direction %s kept for the next reference learned", d)
                 self._publish_status()
                 return
             if busy:
                 log.info("command direction ignored: %s is running", busy)
                 return
-            if self.reference.meta.get("direction") == d:
+            if self.keeper.direction == d:
                 return
             self.jobs.submit("direction", learner.set_direction, self.cfg.reference_path, d)
             self._job_direction = d
@@ -736,58 +699,23 @@ class Service:
         assert self.publisher is not None
         for res in self.jobs.poll():
             if res.name == "learn":
-                self._learned(res)
+                if self.keeper.learned(res, self._learn_why):
+                    self._load_reference()     # at once: no status lies in between
             elif res.name == "forget":
                 if res.ok:
                     self._forgotten(res.value)
                 else:
                     log.error("forgetting the reference failed: %s", res.error)
             elif res.name == "direction":
-                d = self._job_direction
-                if res.ok and self.reference is not None:
-                    # the table is unchanged: the running analysis takes the direction at
-                    # once (its reference is this object), no re-alignment
-                    self.reference.meta["direction"] = d
-                    self.reference.meta["id"] = str(res.value)[:12]
-                    self.airflow.contradiction = Contradiction()
-                    if self.analyzer is not None:
-                        self.analyzer.reference_id = self.reference.meta["id"]
-                    self._reference_sig = self._reference_signature()
-                    log.info("reference direction set to %s (reference %s)", d,
-                             self.reference.meta["id"])
-                    self.publisher.publish_event("reference_direction_set", direction=d,
-                                                 reference=self.reference.meta["id"])
-                elif not res.ok:
-                    log.error("setting the reference direction failed: %s", res.error)
-                    self.publisher.publish_event("reference_learn_failed", detail=res.error)
+                self.keeper.direction_set(res, self._job_direction)
             self._publish_status()
 
     def _forgotten(self, kept: str | None) -> None:
-        """The reference is gone: one step to learning a new one (or to waiting for the
-        Learn button). The rotation the fan had is carried to the new reference, so the
-        direction chosen for the old one is not lost (unless the fan was not seen
-        turning with a known direction)."""
-        assert self.publisher is not None
-        old = self.reference.meta.get("direction") if self.reference is not None else None
-        log.info("reference forgotten%s", f" (kept as {kept})" if kept else "")
-        self.publisher.publish_event("reference_forgotten", detail=kept)
-        if self._pending_direction is None and old in ("cw", "ccw") \
-                and self._turning_rotation in ("cw", "ccw"):
-            self._pending_direction = self._turning_rotation
-        self.analyzer = None
-        self.reference = None
-        self.fit = None
+        """The reference is gone (keeper.forgotten): learn a new one at once if allowed,
+        else wait for the Learn button."""
+        self.keeper.forgotten(kept, self._turning_rotation)
         self._last_state = None
-        # the file is gone and that is known: no reference_missing event follows
-        self._reference_problem = ("the reference was forgotten; learn a new one with the "
-                                   "Learn reference button or the learn command")
-        self._reference_missing = True
-        self._reference_sig = self._reference_signature()
-        self._learn_failure = None
-        self._learn_next_try = 0.0
-        self._learn_wait = self.cfg.reference.retry_s
-        self._learn_note = "the reference was forgotten"
-        if self._learn_allowed():
+        if self.keeper.learn_allowed():
             self._start_recording("auto")
 
     def _setting(self, cmd: Command) -> None:
@@ -801,8 +729,8 @@ class Service:
             self._status_sent = None      # republish: Home Assistant shows the value in force
             return
         self.cfg, self._stored = new, stored
-        if self.fit is not None:
-            self.fit.stale_fit = self.cfg.reference.stale_fit
+        if self.keeper.fit is not None:
+            self.keeper.fit.stale_fit = self.cfg.reference.stale_fit
         try:
             settings_store.save(self._settings_path, stored)
         except OSError as exc:
@@ -811,61 +739,6 @@ class Service:
                       self._settings_path, exc.strerror or exc)
         log.info("reference.%s set to %r from MQTT", cmd.key, getattr(self.cfg.reference,
                                                                       cmd.key))
-
-    def _learned(self, res: learner.JobResult) -> None:
-        assert self.publisher is not None
-        why = self._learn_why
-        if res.ok:
-            info = res.value
-            self.counters.references_learned += 1
-            self._learn_failure = None
-            self._learn_note = None
-            self._learn_wait = self.cfg.reference.retry_s
-            log.info("reference learned (%s): %s, %.3f Hz, quality %.2f, direction %s", why,
-                     info.get("id"), info.get("rate_hz", float("nan")),
-                     info.get("quality", float("nan")), info.get("direction"))
-            self.publisher.publish_event(
-                "reference_learned", reference=info.get("id"), rate_hz=info.get("rate_hz"),
-                quality=info.get("quality"), direction=info.get("direction"), source=why,
-                direction_source=info.get("direction_source"),
-                airflow=info.get("airflow"), airflow_confidence=info.get("airflow_confidence"),
-                warnings=info.get("warnings") or [])
-            # read back what was written, new analyzer, re-align; at once, so that no
-            # status lies between learning and the new reference
-            self.analyzer = None
-            self._reference_problem = None
-            self._next_reference_try = self.clock() + REFERENCE_POLL_S
-            self._load_reference()
-            return
-        self.counters.learn_failures += 1
-        self._learn_failure = res.error
-        log.warning("learning a reference failed (%s): %s; next automatic try in %.0f s",
-                    why, res.error, self._learn_wait)
-        self.publisher.publish_event("reference_learn_failed", detail=res.error, source=why)
-        self._learn_next_try = self.clock() + self._learn_wait
-        self._learn_wait = min(2.0 * self._learn_wait, self.cfg.reference.retry_max_s)
-
-    def _sample_fit(self, now: float) -> None:
-        """The reference fit watch, once a second; a stale reference is an event once."""
-        if self.fit is None or self.analyzer is None:
-            return
-        got = self.analyzer.fit_sample()
-        if got is None:
-            return
-        moving, quality = got
-        self._moving = moving
-        was = self.fit.stale
-        self.fit.update(now, moving, quality)
-        if self.fit.stale and not was and not self._stale_reported:
-            self._stale_reported = True
-            _, detail = self._status()
-            log.warning("%s", detail)
-            assert self.publisher is not None
-            self.publisher.publish_event("reference_stale", detail=detail,
-                                         fit=round(self.fit.fit or 0.0, 3))
-        elif was and not self.fit.stale:
-            self._stale_reported = False
-            log.info("the reference fits the room again (fit %.2f)", self.fit.fit or 0.0)
 
     def _do_reload(self) -> None:
         """SIGHUP: validate the new config first; on any error keep the old one running."""
@@ -900,17 +773,14 @@ class Service:
                 old.sim) == (new.audio, new.waveform, new.scene, new.analysis, new.tracking,
                              new.daemon, new.sim)
         if same and self.analyzer is not None \
-                and self._reference_signature() == self._reference_sig:
+                and self.keeper.unchanged_on_disk():
             log.info("configuration reloaded from %s; analysis settings and reference "
                      "unchanged: tracking goes on", self.config_path)
             if self._ready_sent:
                 self.notifier.ready("configuration reloaded; tracking goes on")
             return
         # The reference is re-read (a new one may have been recorded).
-        self.analyzer = None
-        self._reference_problem = None
-        self._next_reference_try = 0.0
-        self._learn_next_try = 0.0
+        self.keeper.reread()
         log.info("configuration reloaded from %s", self.config_path)
         if self._ready_sent:
             # the reload is done (systemctl reload returns); re-alignment shows in STATUS
@@ -929,6 +799,7 @@ class Service:
         self._cpu_mark = (cpu, uptime_s)
         span = uptime_s - prev_up
         lat, self._latencies = self._latencies, []
+        fit = self.keeper.fit.fit if self.keeper.fit is not None else None
         return {
             "started_at": self._started_at,
             "uptime_s": round(uptime_s, 1),
@@ -946,10 +817,10 @@ class Service:
             "reloads": self.counters.reloads,
             "reload_errors": self.counters.reload_errors,
             "signal_errors": self.counters.signal_errors,
-            "references_learned": self.counters.references_learned,
-            "learn_failures": self.counters.learn_failures,
+            "references_learned": self.keeper.learned_count,
+            "learn_failures": self.keeper.learn_failures,
             "commands": pub.get("commands", 0),
             "commands_refused": pub.get("commands_refused", 0),
-            "fit": None if self.fit is None or self.fit.fit is None else round(self.fit.fit, 3),
+            "fit": None if fit is None else round(fit, 3),
             "audio": audio,
         }

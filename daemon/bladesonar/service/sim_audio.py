@@ -13,12 +13,15 @@ import logging
 import math
 import time
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import ConfigError
 from .audio import PulseBlock
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 log = logging.getLogger(__name__)
 
@@ -31,13 +34,15 @@ SNR_REFERENCE_S = 120.0
 class SimAudio:
     """Implements ``AudioIO`` on ``bladesonar.sim.render.Simulator``."""
 
-    def __init__(self, cfg: Any, *, clock: Callable[[], float] = time.monotonic,
+    def __init__(self, cfg: Config, *, clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep) -> None:
         self.cfg = cfg
         self.pri = int(cfg.waveform.pri_samples)
         self.fs = float(cfg.audio.sample_rate)
         self.clock, self.sleep = clock, sleep
-        self._chunks: Iterator[tuple[np.ndarray, list]] | None = None
+        #: what was found and chosen (backends.audio_choice; empty when built directly)
+        self.choice: dict[str, Any] = {}
+        self._chunks: Iterator[tuple[np.ndarray, list[dict[str, Any]]]] | None = None
         self._noise_rng: np.random.Generator | None = None
         self.sigma = 0.0
         self._t0 = 0.0
@@ -58,8 +63,8 @@ class SimAudio:
             if exc.key != "--scene":
                 raise
             raise ConfigError("sim.scene", c.sim.scene, exc.allowed) from exc
-        self._make = lambda seed: Simulator(self._scene, c, c.sim.schedule, snr_db=None,
-                                            seed=seed)
+        self._make: Callable[[int], Simulator] = lambda seed: Simulator(
+            self._scene, c, c.sim.schedule, snr_db=None, seed=seed)
         # noise level: the simulator's SNR definition over the first stretch of the schedule
         ref = Simulator(self._scene, c, c.sim.schedule, snr_db=c.sim.snr_db, seed=c.sim.seed)
         span = min(sum(s.seconds for s in ref.schedule.segments), SNR_REFERENCE_S)

@@ -1,0 +1,116 @@
+"""service/reference_keeper.py's file watch on a real file, with a clock that is a number.
+
+The daemon tests drive the keeper through a real broker and sound path; here its poll
+contract is checked step by step. The reference loader, the analyzer factory and the
+publisher are stand-ins (they record what they are asked), because what is under test
+is when the keeper reads the file and what it says, not the analysis.
+"""
+
+from __future__ import annotations
+
+import types
+from pathlib import Path
+from typing import Any
+
+from bladesonar import config
+from bladesonar.errors import ReferenceFileError, ReferenceMissingError
+from bladesonar.service.airflow_watch import AirflowWatch
+from bladesonar.service.reference_keeper import REFERENCE_POLL_S, ReferenceKeeper
+
+
+class Events:
+    """The publisher's event calls, as the broker would carry them (kind, details)."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[str, dict[str, Any]]] = []
+
+    def publish_event(self, kind: str, **details: Any) -> None:
+        self.sent.append((kind, details))
+
+
+class Host:
+    def __init__(self, cfg: config.Config) -> None:
+        self.cfg = cfg
+        self.publisher: Any = Events()
+        self.airflow = AirflowWatch(cfg)
+        self.statuses = 0
+
+    def _status(self) -> tuple[str, str | None]:
+        return "ok", None
+
+    def _publish_status(self) -> None:
+        self.statuses += 1
+
+    def _publish_unknown(self) -> None:
+        pass
+
+
+class NullNotifier:
+    def status(self, text: str) -> None:
+        pass
+
+
+def load(cfg: config.Config) -> Any:
+    """The file's text is its id; "bad" is an invalid reference."""
+    p = Path(cfg.reference_path)
+    if not p.exists():
+        raise ReferenceMissingError(f"no reference at {p}; make one with bladesonar reference")
+    text = p.read_text()
+    if text == "bad":
+        raise ReferenceFileError(f"{p} is not a reference")
+    return types.SimpleNamespace(meta={"id": text, "direction": "cw", "quality": 0.0})
+
+
+def test_missing_then_written_then_replaced(tmp_path: Path) -> None:
+    """Missing: one event, no learning advice to make one by hand (auto_learn), and the
+    same absent file is not reported again. Written: loaded at the first poll at least
+    REFERENCE_POLL_S after the last try. Replaced under the analysis: dropped and read
+    again at the next check. Made invalid: one reference_invalid event."""
+    cfg = config.from_mapping({"daemon": {"state_dir": str(tmp_path / "state")}})
+    assert Path(cfg.reference_path).is_relative_to(tmp_path)   # never the system's
+    Path(cfg.reference_path).parent.mkdir(parents=True)
+    host = Host(cfg)
+    t = [100.0]
+    built: list[Any] = []
+
+    def factory(c: config.Config, ref: Any) -> Any:
+        built.append(ref)
+        return types.SimpleNamespace(reference_id=ref.meta["id"])
+
+    k = ReferenceKeeper(host, reference_loader=load, analyzer_factory=factory,
+                        notifier=NullNotifier(), clock=lambda: t[0])  # type: ignore[arg-type]
+    assert k.poll(t[0], busy=False) is False
+    assert [e for e, _ in host.publisher.sent] == ["reference_missing"]
+    assert "make one" not in host.publisher.sent[0][1]["detail"]
+    assert k.missing and k.learn_allowed()          # auto_learn is on by default
+    t[0] += REFERENCE_POLL_S
+    assert k.poll(t[0], busy=False) is False        # the same absent file: nothing new
+    assert len(host.publisher.sent) == 1
+
+    Path(cfg.reference_path).write_text("ref-A")
+    t[0] += REFERENCE_POLL_S - 0.5
+    assert k.poll(t[0], busy=False) is False        # not yet due
+    t[0] += 0.5
+    assert k.poll(t[0], busy=True) is False         # a job may be writing the file
+    assert k.poll(t[0], busy=False) is True
+    assert k.reference is not None and k.reference.meta["id"] == "ref-A"
+    assert k.analyzer is not None and k.problem is None and not k.missing
+    assert k.status_fields() == {"reference": "ref-A", "reference_direction": "cw",
+                                 "reference_rate_hz": None, "fit": None}
+
+    Path(cfg.reference_path).write_text("ref-BB")   # another size: another signature
+    t[0] += REFERENCE_POLL_S
+    assert k.poll(t[0], busy=False) is True         # dropped and read again at once
+    assert [r.meta["id"] for r in built] == ["ref-A", "ref-BB"]
+    t[0] += REFERENCE_POLL_S
+    assert k.poll(t[0], busy=False) is False        # unchanged: kept
+    assert len(built) == 2
+
+    Path(cfg.reference_path).write_text("bad")
+    t[0] += REFERENCE_POLL_S
+    assert k.poll(t[0], busy=False) is False
+    assert host.publisher.sent[-1][0] == "reference_invalid"
+    assert k.reference is None and k.analyzer is None and not k.missing
+    t[0] += REFERENCE_POLL_S
+    k.poll(t[0], busy=False)
+    assert [e for e, _ in host.publisher.sent] == ["reference_missing", "reference_invalid"]
