@@ -16,6 +16,8 @@ import pytest
      "belong to the held-out set"),
     (["--random-scenes", "-1", "--set", "tuning"], "give a number of scenes"),
     (["--random-scenes", "1", "--set", "tuning", "--jobs", "0"], "give 1 or more"),
+    (["--dims", "3"], "--dims 3 needs --random-scenes"),
+    (["--random-scenes", "1", "--set", "tuning", "--dims", "4"], "invalid choice"),
 ])
 def test_bench_day_refuses_mixed_or_empty_sets(repo_root, args, says):
     run = subprocess.run([str(repo_root / "tools/bench_day"), *args], capture_output=True,

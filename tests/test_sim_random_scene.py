@@ -126,3 +126,38 @@ def test_a_fan_set_below_the_timed_speed_gives_optional_events():
     assert (len(sc.hits), len(sc.false), len(sc.missed)) == (1, 0, 0)
     sc = score_events(ev, [("started", 37.2)])
     assert (len(sc.hits), len(sc.false), len(sc.missed)) == (1, 0, 0)
+
+
+# ---------------------------------------------------------------------- 3-D days
+
+def test_the_2d_draw_is_the_one_before_the_3d_days_came():
+    """The 2-D scenes kept their random stream when its speed draw was shared with the
+    3-D days: seed 1's figures as drawn before (a changed stream would move every
+    tuning and held-out scene the sweep's figures were measured on)."""
+    d = rs.draw(1)
+    assert d.rates_hz == pytest.approx((0.22345277874996344, 0.5496127641503025), rel=1e-12)
+    assert d.ref_rate_hz == pytest.approx(0.22810354274685346, rel=1e-12)
+    assert d.ref_direction == "cw"
+
+
+@pytest.mark.parametrize("seed", SEEDS[:20] + SEEDS[-10:])
+def test_a_3d_day_is_the_airflow_room_with_a_day_of_its_own(seed):
+    """The room, fan, drift and nuisances of draw_3d(seed); speeds, reference and SNR in
+    the 2-D sweep's envelope, from a stream apart from the 2-D scene of the same seed;
+    the day starts at the reference and keeps to the fan's speeds."""
+    d3, room, d2 = rs.draw_day_3d(seed), rs.draw_3d(seed), rs.draw(seed)
+    assert d3.describe() == rs.draw_day_3d(seed).describe()
+    assert d3.scene == room.scene and d3.drift_ppm == room.drift_ppm
+    assert d3.nuisances == room.nuisances and d3.blades == room.blades == d3.scene.K
+    assert d3.split == rs.split_of(seed) and d3.describe()["dims"] == 3
+    assert d3.rates_hz != d2.rates_hz and d3.schedule(600.0) != d2.schedule(600.0)
+    lo, hi = d3.rates_hz
+    assert 0.1 - 1e-9 <= lo <= d3.ref_rate_hz <= hi <= 2.0 + 1e-9 and hi <= 3.5 * lo + 1e-9
+    prf = config.Config().prf_hz
+    assert hi < prf / (2 * d3.blades)
+    assert 6.0 <= d3.snr_db <= 30.0
+    sch = parse(d3.schedule(1800.0))
+    assert sch.segments[0].direction == d3.ref_direction
+    assert sch.segments[0].rate_hz == pytest.approx(d3.ref_rate_hz, abs=1e-3)
+    assert all(s.rate_hz == 0.0 or lo - 1e-3 <= s.rate_hz <= hi + 1e-3
+               for s in sch.segments)

@@ -56,16 +56,21 @@ def day(hours: float, seed: int, block_pulses: int = 1,
     return cfg, sch, sim, LiveAnalyzer(cfg, ref, block_pulses=block_pulses), snr
 
 
-def random_day(hours: float, seed: int, block_pulses: int = 1
+def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2
                ) -> tuple[config.Config, Schedule, Simulator, LiveAnalyzer,
-                          random_scene.SceneDraw]:
-    """A random scene's day (sim/random_scene.py): the reference is learned in the same
-    room, at the same SNR and drift, from 20 s of the fan at the reference speed, as the
-    daemon learns it; when it warns that the fan's wall bounces fold past one PRI, or that
-    echoes clip, it is learned again with the PRI the warning names, or at half the
-    playback volume (what the user is told to do)."""
+                          random_scene.SceneDraw | random_scene.DayDraw3D]:
+    """A random scene's day (sim/random_scene.py; ``dims`` 3: a 3-D box room with pitched
+    blades, ``draw_day_3d``, rendered in the same streamed chunks): the reference is
+    learned in the same room, at the same SNR and drift, from 20 s of the fan at the
+    reference speed, as the daemon learns it; when it warns that the fan's wall bounces
+    fold past one PRI, or that echoes clip, it is learned again with the PRI the warning
+    names, or at half the playback volume (what the user is told to do)."""
     cfg0 = config.Config()
-    dr = random_scene.draw(seed, cfg0.prf_hz)
+    if dims not in (2, 3):
+        raise ValueError(f"dims {dims!r}: give 2 (floor-plan scenes) or 3 (box rooms)")
+    dr: random_scene.SceneDraw | random_scene.DayDraw3D = (
+        random_scene.draw(seed, cfg0.prf_hz) if dims == 2
+        else random_scene.draw_day_3d(seed, cfg0.prf_hz))
     cfg = config.replace(cfg0, scene={"blades": dr.blades})
     sch = parse(dr.schedule(hours * 3600.0))
     def learn(cfg: config.Config) -> Reference:

@@ -159,6 +159,16 @@ def _reference_rate(rng: np.random.Generator, lo: float, hi: float, blades: int,
     return r
 
 
+def _day_speeds(rng: np.random.Generator, blades: int, prf: float
+                ) -> tuple[float, float, float, str]:
+    """A day's speed range [lo, hi] within 0.1-2 Hz (hi at most 3.5 lo), the reference's
+    speed inside it and its direction."""
+    lo = float(np.exp(rng.uniform(math.log(RATE_HZ[0]), math.log(0.6))))
+    hi = min(lo * float(rng.uniform(2.0, SPAN)), RATE_HZ[1])
+    ref = _reference_rate(rng, lo, hi, blades, prf)
+    return lo, hi, ref, "ccw" if rng.uniform() < 0.5 else "cw"
+
+
 def draw(seed: int, prf: float = 44100.0 / 1297) -> SceneDraw:
     """The scene of ``seed`` (same seed, same scene); ``prf`` the config's, Hz."""
     rng = np.random.default_rng([seed, 1])
@@ -178,10 +188,7 @@ def draw(seed: int, prf: float = 44100.0 / 1297) -> SceneDraw:
             break
     refl = [round(float(rng.uniform(*REFLECTION)), 3) for _ in verts]
     ceiling = float(rng.uniform(*CEILING_M))
-    lo = float(np.exp(rng.uniform(math.log(RATE_HZ[0]), math.log(0.6))))
-    hi = min(lo * float(rng.uniform(2.0, SPAN)), RATE_HZ[1])
-    ref = _reference_rate(rng, lo, hi, K, prf)
-    ref_dir = "ccw" if rng.uniform() < 0.5 else "cw"
+    lo, hi, ref, ref_dir = _day_speeds(rng, K, prf)
     coupling = float(np.exp(rng.uniform(0.0, math.log(COUPLING[1]))))
     snr = float(rng.uniform(*SNR_DB))
     drift = float(rng.uniform(-DRIFT_PPM, DRIFT_PPM))
@@ -317,3 +324,68 @@ def draw_3d(seed: int) -> SceneDraw3D:
                        drift_ppm=float(rng.uniform(-DRIFT_PPM, DRIFT_PPM)),
                        schedule=schedule, seconds=seconds,
                        rate_hz=rate if direction == "ccw" else -rate, nuisances=Nuisances(**nz))
+
+
+@dataclass(frozen=True)
+class DayDraw3D:
+    """A random 3-D scene (:func:`draw_3d`) and a day of ordinary use lived in it, with
+    the same interface as :class:`SceneDraw` (tools/days.py ``random_day``)."""
+
+    seed: int
+    room: SceneDraw3D
+    snr_db: float
+    rates_hz: tuple[float, float]
+    ref_rate_hz: float
+    ref_direction: str
+
+    dims = 3
+
+    @property
+    def split(self) -> str:
+        return split_of(self.seed)
+
+    @property
+    def scene(self) -> Scene3D:
+        return self.room.scene
+
+    @property
+    def blades(self) -> int:
+        return self.room.blades
+
+    @property
+    def drift_ppm(self) -> float:
+        return self.room.drift_ppm
+
+    @property
+    def nuisances(self) -> Nuisances:
+        return self.room.nuisances
+
+    def schedule(self, seconds: float) -> str:
+        """The day (ccw/cw seen from below): ordinary use at this fan's speeds, starting
+        at the reference's; a stream of its own, apart from the 2-D day's."""
+        rng = np.random.default_rng([self.seed, 5])
+        return ordinary_use(rng, seconds, rates=self.rates_hz,
+                            first=(self.ref_direction, round(self.ref_rate_hz, 3)))
+
+    def describe(self) -> dict[str, Any]:
+        r = self.room.describe()
+        for k in ("rate_hz", "schedule", "seconds", "airflow"):
+            r.pop(k)
+        return {**r, "dims": 3, "sensor_fan_m": round(self.scene.sensor_fan_distance_m, 2),
+                "coupling_gain": round(self.scene.coupling_gain, 2),
+                "snr_db": round(self.snr_db, 1),
+                "rates_hz": [round(v, 3) for v in self.rates_hz],
+                "reference": f"{self.ref_direction}:{self.ref_rate_hz:.3f}"}
+
+
+def draw_day_3d(seed: int, prf: float = 44100.0 / 1297) -> DayDraw3D:
+    """The 3-D day of ``seed`` (tools/bench_day --dims 3): the room, fan, sensor, drift and
+    nuisances of :func:`draw_3d` (AGC and bursts included where drawn), and from a stream
+    of their own the day's SNR (6-30 dB, as the 2-D sweep's) and speeds (as :func:`draw`'s:
+    a range within 0.1-2 Hz, the reference at a speed inside it). Independent of the 2-D
+    scene of the same seed."""
+    room = draw_3d(seed)
+    rng = np.random.default_rng([seed, 4])
+    lo, hi, ref, ref_dir = _day_speeds(rng, room.blades, prf)
+    return DayDraw3D(seed=seed, room=room, snr_db=float(rng.uniform(*SNR_DB)),
+                     rates_hz=(lo, hi), ref_rate_hz=ref, ref_direction=ref_dir)
