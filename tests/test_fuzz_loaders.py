@@ -154,6 +154,22 @@ def test_reference_metadata_of_any_value_loads_or_gives_one_error(good_ref, data
     _check_loaded(loaded)
 
 
+@pytest.mark.parametrize("device", [None, True, [1, 2], "x", {"gain_wander_db": None},
+                                    {"gain_wander_db": "3"}, {"gain_wander_db": 1e300}])
+def test_a_device_entry_of_any_value_gives_a_usable_analyzer(good_ref, device):
+    """The case the fuzz above found (``device: null``, AttributeError in new_analyzer):
+    the optional device figures, whatever they hold, neither break the analyzer nor
+    switch on the gain normalisation, except a real wander over its threshold."""
+    ref, _ = good_ref
+    meta = json.loads(json.dumps(ref.meta))
+    meta["device"] = device
+    meta["file_format"] = 2
+    meta["sha256"] = checksum(ref.table, ref.mean_pulse, meta)
+    loaded = parse_reference(_npz(ref.table, ref.mean_pulse, meta), "m.npz")
+    an = new_analyzer(config.Config(), loaded)
+    assert an.static.normalise == (device == {"gain_wander_db": 1e300})
+
+
 @FUZZ
 @given(table=st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64),
                       min_size=1, max_size=64),

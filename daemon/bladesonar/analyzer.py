@@ -757,8 +757,12 @@ def new_analyzer(cfg: Config, ref: Reference, first: np.ndarray | None = None) -
     w = max(cfg.analysis.static_window_s * cfg.prf_hz, 1.0)
     mean = ref.mean_pulse if first is None or len(first) == 0 else np.mean(first, axis=0)
     static = StaticRemover(1.0 / w, mean)
-    wander = ref.meta.get("device", {}).get("gain_wander_db") or 0.0
-    static.normalise = wander > dev.NORMALISE_ABOVE_DB
+    # (a reference file's metadata is checked for what it must hold, not for this optional
+    # figure: a device entry that is not a table, or a wander that is not a number, is none)
+    device = ref.meta.get("device")
+    wander = device.get("gain_wander_db") if isinstance(device, dict) else None
+    static.normalise = isinstance(wander, (int, float)) and not isinstance(wander, bool) \
+        and math.isfinite(wander) and wander > dev.NORMALISE_ABOVE_DB
     return PulseAnalyzer(cfg, ref, static)
 
 
@@ -812,7 +816,8 @@ def device_figures(aligner: PulseAligner, an: PulseAnalyzer | None) -> dict[str,
     """What an analysis saw of the device (analyze's summary, the daemon's stats): the
     share of direct couplings that were clipped, the gain's wander, the pulses skipped
     for bursts, and the room's tail as the reference measured it."""
-    dv = an.ref.meta.get("device", {}) if an is not None else {}
+    dv = an.ref.meta.get("device") if an is not None else None
+    dv = dv if isinstance(dv, dict) else {}
     return {
         "clipped_coupling": round(aligner.coupling_clipped / max(aligner.edges_measured, 1),
                                   4),
