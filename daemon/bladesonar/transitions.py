@@ -41,6 +41,11 @@ evidence has held for a while:
   the fan) is a known kind of its own, so a start and a stop still fire in such a room;
   a direction confirmed after it fires nothing (the fan did not change). Where a
   direction is known, such a decision is ``unknown``;
+* a *sudden* reversal (its first answer sooner than half the time a fan needs through
+  zero from when it was last seen turning: ``SUDDEN_SHARE``) is what a track taken up on
+  the mirror of the blade pattern gives; it counts only on a line that has beaten its
+  mirror image (:attr:`Decision.mirror_checked`), and not at all in a room whose
+  directions have lately been in doubt (:attr:`Decision.doubtful_room`);
 * everything else is ``unknown`` and leaves the last known state in place.
 
 Events fire only on a change of the *known* state: ``started`` (stopped -> turning),
