@@ -123,6 +123,14 @@ def reversal_delay(run: Run, session: dict[str, float]) -> float:
     return t - (session["session_started_at"] + session["answer_delay_s"] + REVERSE_AT)
 
 
+def off_alsa(run: Run, session: dict[str, float], alsa: dict[str, Any]) -> float:
+    """How much later (s) than through the ALSA loopback ``run`` confirmed the reversal of
+    ``session`` (printed for the post-mortem)."""
+    delay = reversal_delay(run, session)
+    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa['delay']:.2f} s")
+    return delay - alsa["delay"]
+
+
 def record_reference(cfg: Path, env: dict[str, str], rel: float = 0.005) -> None:
     r = subprocess.run(bladesonar_cmd("reference", "--live", "--seconds", str(REF_S),
                                       "--direction", "ccw", "--config", str(cfg)),
@@ -343,9 +351,8 @@ def test_a_rate_the_graph_would_resample_is_refused_with_the_fix(graph48, tmp_pa
 def test_daemon_at_48k_answers_like_the_alsa_loopback(graph48, alsa48):
     run = graph48.run(RUN_S)
     check_answer(run)
-    delay = reversal_delay(run, graph48.last_session())
-    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa48['delay']:.2f} s")
-    assert abs(delay - alsa48["delay"]) < 0.3, (delay, alsa48["delay"])
+    off = off_alsa(run, graph48.last_session(), alsa48)
+    assert abs(off) < 0.3, off
     st = run.last_stats()
     check_no_loss(st)
     assert st["audio_restarts"] == 0
@@ -368,16 +375,15 @@ def test_a_quantum_change_mid_run_changes_nothing_a_subscriber_sees(graph48, als
     check_no_loss(st)
     assert st["audio_restarts"] == 0
     assert st["audio"]["sound_server"]["stream_latency_jumps"] >= 1   # the change was seen
-    delay = reversal_delay(run, graph48.last_session())
-    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa48['delay']:.2f} s")
-    if abs(delay - alsa48["delay"]) >= 0.3:
+    off = off_alsa(run, graph48.last_session(), alsa48)
+    if abs(off) >= 0.3:
         # open (docs/audio.md): the same events and rate, but on the step reversal the
         # reversal was confirmed 0.53-0.66 s later than through the ALSA loopback in
         # every run (256 or 512 frames, changed at 4-16 s; 0.18 s without the change);
         # on the 3 s ramp one run gave +0.07 s. Not the daemon's timing (capture to
         # state 4-20 ms); offline, a latency step with its dropped pulse moved the
         # confirmation of the same reversal by up to 0.9 s either way
-        pytest.xfail(f"a quantum change puts the reversal {delay - alsa48['delay']:+.2f} s "
+        pytest.xfail(f"a quantum change puts the reversal {off:+.2f} s "
                      "off the ALSA loopback's (open: docs/audio.md)")
 
 
@@ -393,9 +399,8 @@ def test_the_server_restarted_under_the_daemon(graph48, alsa48):
     after = sessions(graph48.truth)[before:]
     assert len(after) == 2, after                  # before the restart, and after it
     check_answer(run)
-    delay = reversal_delay(run, after[-1])
-    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa48['delay']:.2f} s")
-    assert abs(delay - alsa48["delay"]) < 0.3, (delay, alsa48["delay"])
+    off = off_alsa(run, after[-1], alsa48)
+    assert abs(off) < 0.3, off
     st = run.last_stats()
     assert st["audio_restarts"] >= 1
     # the dying server failed every read and write at once (counted as xruns, 20 in a row
@@ -425,20 +430,19 @@ def test_nodes_suspended_under_the_daemon(graph48, alsa48):
     print("sessions:", after)
     assert len(after) in (1, 2), after
     check_answer(run)
-    delay = reversal_delay(run, after[-1])
-    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa48['delay']:.2f} s")
+    off = off_alsa(run, after[-1], alsa48)
     st = run.last_stats()
     if len(after) == 2:              # the graph stalled: the daemon reopened its streams
         assert st["audio_restarts"] >= 1
         assert "no direct-coupling pulse through PipeWire" in run.stderr
     check_no_loss(st)
-    if abs(delay - alsa48["delay"]) >= 0.3:
+    if abs(off) >= 0.3:
         # open, as for the quantum change (docs/audio.md): the suspend steps the latency
         # between the streams twice and costs two pulses; on the 3 s ramp the reversal
         # was then confirmed 0.42 s after the ALSA loopback's in both runs (the step
         # reversal had passed, 1.95 s against 1.77 s, before sudden reversals waited for
         # the mirror check)
-        pytest.xfail(f"a suspend puts the reversal {delay - alsa48['delay']:+.2f} s off "
+        pytest.xfail(f"a suspend puts the reversal {off:+.2f} s off "
                      "the ALSA loopback's (open: docs/audio.md)")
 
 
@@ -454,9 +458,8 @@ def graph44(tmp_path_factory):
 def test_daemon_at_44k1_answers_like_the_alsa_loopback(graph44, alsa44):
     run = graph44.run(RUN_S)
     check_answer(run)
-    delay = reversal_delay(run, graph44.last_session())
-    print(f"reversal seen {delay:.2f} s after its echo, ALSA {alsa44['delay']:.2f} s")
-    assert abs(delay - alsa44["delay"]) < 0.3, (delay, alsa44["delay"])
+    off = off_alsa(run, graph44.last_session(), alsa44)
+    assert abs(off) < 0.3, off
     st = run.last_stats()
     check_no_loss(st)
     check_pipewire_stats(st, 44100)

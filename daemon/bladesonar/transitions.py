@@ -360,13 +360,15 @@ class Transitions:
 
     def _sudden_reversal(self, t_s: float, rate: float, cand: str) -> bool:
         """Whether an answer of ``cand`` at ``rate`` (Hz), the other way from the known
-        direction, comes sooner than a fan could reverse from the last answer of the known
-        way (down through zero and up at ``max_reversal_hz_s``), with no answer of rest
-        between (the meter lags them: a fan reversed at 0.12 Hz/s read as at rest 0.5 s
-        after it was turning the other way at 0.16 Hz): a fan that really
-        reverses is driven through zero at a ramp, and answers that jump to the other way
-        at about the old speed are a track taken up on the mirror of the blade pattern
-        (false reversals at 0.19-0.74 Hz in random rooms, the same speed either side)."""
+        direction, comes within ``SUDDEN_SHARE`` of the time a fan needs to reverse (down
+        through zero and up at ``max_reversal_hz_s``) from when it was last seen turning
+        (``_chain``: answers of the known way, answers without a direction at its speed,
+        windows in doubt in a doubtful room), with no answer of rest between (the meter
+        lags: a fan reversed at 0.12 Hz/s read as at rest 0.5 s after it was turning the
+        other way at 0.16 Hz). A fan that really reverses is driven through zero at a
+        ramp; answers that jump to the other way at about the old speed are a track taken
+        up on the mirror of the blade pattern (false reversals at 0.19-0.74 Hz in random
+        rooms, the same speed either side)."""
         st = self.settings
         if self.known not in ("+", "-") or cand not in ("+", "-") or cand == self.known \
                 or self._chain is None or not st.max_reversal_hz_s > 0:
