@@ -961,6 +961,28 @@ def test_a_reversal_through_zero_needs_no_mirror_check():
     assert fired == [("reversed", 79 + 16)]
 
 
+def test_a_run_that_resumes_after_a_break_is_judged_afresh():
+    """Closed form, 34 pulses/s: 'same' slowing from 0.45 Hz at 0.15 Hz/s for 2 s (pulses
+    0-67, to 0.154 Hz; its line reaches zero at 3 s), three answers the other way at
+    0.16 Hz at once (a lock on the mirror image: sudden, as through zero a fan needs
+    (0.154 + 0.16) / 0.3 = 1.05 s), 1.5 s with no answer, then the other way rising from
+    0.1 Hz on a line not yet checked against its mirror. When it resumes (pulse 122,
+    3.59 s) the slowing line has passed zero and the fan was last seen turning 1.6 s
+    before: no longer sooner than a fan reverses, so the earlier run's verdict must not
+    stick to it; the resumed run confirms at its 17th answer (pulse 122 + 16; the three
+    early answers have left the 2 x 17-pulse support window). After a fan seen steady at
+    0.154 Hz, not slowing to zero, the same answers are still the mirror's."""
+    down = [_d("same", 0.45 - 0.15 * i / 34) for i in range(68)]
+    lock = [_d("reversed", 0.16, checked=False)] * 3
+    gap = [Decision("unknown", None, None, None, None, 0.0, "no match")] * 51
+    up = [_d("reversed", 0.1 + 0.15 * i / 34, checked=False) for i in range(40)]
+    fired, published, _ = _walk(down + lock + gap + up)
+    assert set(published[68:71]) == {"unknown"}
+    assert fired == [("reversed", 122 + 16)]
+    fired, _, _ = _walk([_d("same", 0.154)] * 68 + lock + gap + up)
+    assert fired == []
+
+
 def test_in_a_doubtful_room_a_fan_seen_turning_throughout_does_not_reverse():
     """Closed form: 'same' at 0.2 Hz, then 10 s (340 pulses) in which the direction is in
     doubt but the fan is seen turning at 0.2 Hz, then a line the other way at 0.2 Hz that

@@ -267,6 +267,15 @@ class Transitions:
             self._support.clear()
             self._cand_rate, self._cand_t = _rate(d), float(t_s)
             self._cand_sudden = self._sudden_reversal(t_s, self._cand_rate, cand)
+        elif cand is not None and prev != cand and self._cand_sudden \
+                and self.known in ("+", "-") and self._past_zero(t_s, self.known):
+            # the run resumes after a break, and the old way was last seen slowing on a
+            # line that has reached zero since: judged afresh, or a lock on the mirror
+            # image before a real reversal's zero would hold the real one to the mirror
+            # check (a reversal at 0.15 Hz/s confirmed 1.5 s later than without the early
+            # lock). A fan not seen slowing to zero keeps the verdict (false reversals in
+            # a room at 7 dB when any resumed run was judged afresh)
+            self._cand_sudden = self._sudden_reversal(t_s, _rate(d), cand)
         fired: list[Event] = []
         if cand is None:
             return d, fired
