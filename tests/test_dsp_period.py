@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bladesonar.dsp.fingerprint import envelope_features
-from bladesonar.dsp.period import estimate_period
+from bladesonar.dsp.period import drift_harmonic, estimate_period, sub_sample_cycle
 from bladesonar.errors import EstimationError
 from synth_pulses import fan_pulse
 
@@ -153,3 +153,31 @@ def test_a_reference_at_2_33_blade_period_per_pulse_is_not_folded_at_13_33():
                     include_paths=False)
     ref = build_reference(x, cfg, "cw")
     assert ref.meta["rate_hz"] == pytest.approx(0.5151, rel=1e-3)
+
+
+def test_a_rate_on_the_drifting_sub_sample_cycle_is_named_by_its_harmonic():
+    """Closed form: pulses 1297.0320 samples apart (+24.7 ppm on a 1297-sample PRI) are
+    read at a sub-sample position that turns 0.0320 cycles per pulse; over 680 pulses a
+    bin is 1/680 = 0.00147. 0.0640 (1.99 x, the 3-D scene whose reference came out at
+    3.3 times the fan's rate) is the second harmonic, 0.0320 and 0.0960 the first and
+    third, 0.050 none. With the drift the other way (1296.8443: 0.1557 per pulse) 0.3125
+    is the second; a harmonic past 1/2 folds (0.3 per pulse: the second is 0.4)."""
+    assert sub_sample_cycle(1297.0320) == pytest.approx(0.0320, abs=1e-9)
+    assert sub_sample_cycle(1296.8443) == pytest.approx(0.1557, abs=1e-9)
+    assert drift_harmonic(0.0640, 1297.0320, 680) == 2
+    assert drift_harmonic(0.06407, 1297.0320, 680) == 2
+    assert drift_harmonic(0.0320, 1297.0320, 680) == 1
+    assert drift_harmonic(0.0960, 1297.0320, 680) == 3
+    assert drift_harmonic(0.0500, 1297.0320, 680) is None
+    assert drift_harmonic(0.0640 + 2.0 / 680, 1297.0320, 680) is None
+    assert drift_harmonic(0.3125, 1296.8443, 680) == 2
+    assert drift_harmonic(0.4, 1297.3, 680) == 2
+
+
+def test_a_sub_sample_cycle_that_hardly_turns_over_the_record_is_no_line():
+    """Closed form: at +0.8 ppm (1297.001 samples) the position turns 0.68 times over
+    680 pulses: no line to mistake a fan for, whatever the rate (so a slow fan at
+    0.001 cycles per pulse is not refused)."""
+    assert drift_harmonic(0.001, 1297.001, 680) is None
+    assert drift_harmonic(0.002, 1297.001, 680) is None
+    assert drift_harmonic(0.001, 1297.001, 3000) == 1

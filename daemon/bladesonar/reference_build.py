@@ -22,7 +22,7 @@ from .dsp import aliasing
 from .dsp import device as dev
 from .dsp import fingerprint as fp
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
-from .dsp.period import estimate_period
+from .dsp.period import drift_harmonic, estimate_period, sub_sample_cycle
 from .dsp.pulses import (
     BURST,
     OK,
@@ -35,7 +35,7 @@ from .dsp.pulses import (
 )
 from .dsp.rangedoppler import band_limited, range_doppler, without_shift_and_gain
 from .dsp.stats import median
-from .errors import InputError, ReferenceFileError
+from .errors import EstimationError, InputError, ReferenceFileError
 
 #: Share of the band (up to Nyquist) in which a reference's target range is looked for
 #: (the moving energy of the range-doppler map; dsp.pulses.EDGE_BAND's reason).
@@ -239,6 +239,20 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
                           line_snr_min=a.line_snr_min)
     r = est.cycles_per_pulse
     span = int(k[-1] - k[0]) + 1 if len(k) else 0
+    h = drift_harmonic(r, aligner.period, span)
+    if h is not None:
+        ppm = (aligner.period / pri - 1.0) * 1e6
+        hz = r * prf / cfg.scene.blades
+        raise EstimationError(
+            f"the pattern found turns {r:.5f} blade periods per pulse ({hz:.3f} Hz), "
+            f"{'on' if h == 1 else f'at {h} times'} the cycle of the pulses' sub-sample "
+            f"position "
+            f"under this device's clock drift ({sub_sample_cycle(aligner.period):.5f} per "
+            f"pulse, {ppm:+.0f} ppm): it is the alignment's interpolation error on strong "
+            f"static echoes, not the fan, whose echoes are too weak from here. Place the "
+            f"device where it sees the blades better (nearer the fan, 0.5-2 m off its "
+            f"axis, nothing between); if the fan does turn at {hz:.3f} Hz, record the "
+            f"reference at another speed")
     folded = aliasing.folded_angles(r, span)
     if folded is not None:
         p, q = folded.numerator, folded.denominator

@@ -224,6 +224,36 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
                           periods=r * span)
 
 
+#: Harmonics of the aligner's sub-sample cycle that a found blade rate is checked against.
+DRIFT_HARMONICS = (1, 2, 3)
+
+
+def sub_sample_cycle(period: float) -> float:
+    """Cycles per pulse of the sub-sample position at which pulses ``period`` capture
+    samples apart are read (0 .. 1/2): under clock drift it turns once every
+    1 / (drift x PRI) pulses, and with it the interpolation error on strong static
+    echoes, a pattern that repeats like a fan's."""
+    frac = float(period) % 1.0
+    return min(frac, 1.0 - frac)
+
+
+def drift_harmonic(r: float, period: float, span: float) -> int | None:
+    """The harmonic h (of :data:`DRIFT_HARMONICS`) of the sub-sample cycle that the blade
+    rate ``r`` (cycles per pulse) lies within one spectral bin (1 / ``span`` pulses) of,
+    or None. A fan 3.2 m away whose echoes were 30-45 dB under the walls' gave a
+    reference at 1.99 times the cycle (0.726 Hz for a fan at 0.219 Hz), another at 2.007
+    times (3.54 Hz for 0.264 Hz). A cycle that turns fewer than 2 times over the record
+    is no line at all and is not checked."""
+    cyc = sub_sample_cycle(period)
+    if not span > 0 or cyc * span < 2.0:
+        return None
+    for h in DRIFT_HARMONICS:
+        f = (h * cyc) % 1.0
+        if abs(min(f, 1.0 - f) - float(r)) <= 1.0 / span:
+            return h
+    return None
+
+
 @dataclass(frozen=True)
 class DopplerLines:
     """The range-summed doppler spectrum of a record (:func:`doppler_spectrum`), its noise
