@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from bladesonar import config
-from bladesonar.dsp.decide import Decision
+from bladesonar.answer import Decision, Direction
 from bladesonar.io.scene_file import load_scene
 from bladesonar.offline import analyze
 from bladesonar.reference_build import build_reference
@@ -298,7 +298,7 @@ def test_state_machine_needs_confirmation_and_fires_between_known_states():
 
 def _doubt(rate=0.4):
     """A fan turning at ``rate`` whose direction is in doubt (its mirror fits as well)."""
-    return Decision("unknown", None, None, rate, None, 0.3, "direction in doubt",
+    return Decision(Direction.UNKNOWN, None, None, rate, None, 0.3, "direction in doubt",
                     turning=True)
 
 
@@ -955,7 +955,7 @@ def test_a_reversal_through_zero_needs_no_mirror_check():
     is later than the 0.67 s a fan needs through zero at 0.3 Hz/s, so a new line, not
     yet checked against its mirror, confirms at its 17th answer (pulse 79 + 16)."""
     down = [_d("same", 0.3 - 0.15 * i / 34) for i in range(46)]
-    gap = [Decision("unknown", None, None, None, None, 0.0, "no match")] * 33
+    gap = [Decision(Direction.UNKNOWN, None, None, None, None, 0.0, "no match")] * 33
     up = [_d("reversed", 0.1 + 0.15 * i / 34, checked=False) for i in range(40)]
     fired, _, _ = _walk(down + gap + up)
     assert fired == [("reversed", 79 + 16)]
@@ -969,10 +969,10 @@ def test_in_a_doubtful_room_a_fan_seen_turning_throughout_does_not_reverse():
     other way is published as unknown. Where the room is not doubtful they do not, and
     the 10 s suffice for a reversal: it fires at the 17th answer."""
     def doubt(room):
-        return Decision("unknown", None, None, 0.2, None, 0.3, "direction in doubt",
+        return Decision(Direction.UNKNOWN, None, None, 0.2, None, 0.3, "direction in doubt",
                         turning=True, doubtful_room=room)
     def other(room):
-        return Decision("reversed", None, None, 0.2, None, 0.9, "test",
+        return Decision(Direction.REVERSED, None, None, 0.2, None, 0.9, "test",
                         mirror_checked=True, doubtful_room=room)
     same = [_d("same", 0.2)] * 40
     fired, published, tr = _walk(same + [doubt(True)] * 340 + [other(True)] * 100)
@@ -989,7 +989,7 @@ def test_weak_answers_at_the_same_speed_keep_a_fan_from_reversing_at_once():
     speeds far from it (alias lines, 1.1 Hz) show nothing, and 10 s suffice for a
     reversal: it fires at the 17th answer."""
     def weak(rate):
-        return Decision("unknown", None, None, rate, None, 0.3, "weak evidence")
+        return Decision(Direction.UNKNOWN, None, None, rate, None, 0.3, "weak evidence")
     same = [_d("same", 0.36)] * 40
     near = [weak(0.33 + 0.05 * (i % 2)) for i in range(340)]
     other = [_d("reversed", 0.36, checked=False)] * 100

@@ -37,9 +37,10 @@ import time
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, NamedTuple
 
+from ..answer import SIGNIFICANT_DIGITS, Estimate, significant
+
 if TYPE_CHECKING:
     from ..config import Config
-    from ..live import Estimate
 
 #: Availability payloads (Home Assistant's defaults, so no payload_* keys are needed).
 ONLINE = "online"
@@ -85,9 +86,6 @@ RUNNING_HOLD_S = 60.0
 #: Statuses under which ``running`` is held: the analysis (or the learning that follows
 #: a Forget) goes on and will name the state again. Any other status makes it unknown.
 HOLD_STATUSES = ("starting", "ok", "learning", "airflow_contradiction")
-
-#: Significant digits kept in float payload values.
-FLOAT_DIGITS = 6
 
 
 class Message(NamedTuple):
@@ -193,7 +191,7 @@ def clean_dict(fields: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def clean(value: Any, digits: int = FLOAT_DIGITS) -> Any:
+def clean(value: Any, digits: int = SIGNIFICANT_DIGITS) -> Any:
     """A JSON-safe copy: NaN/inf -> None, floats rounded to ``digits`` significant digits,
     numpy scalars and arrays -> Python numbers and lists, tuples -> lists, other objects
     -> str."""
@@ -202,10 +200,7 @@ def clean(value: Any, digits: int = FLOAT_DIGITS) -> Any:
     if isinstance(value, numbers.Integral):
         return int(value)
     if isinstance(value, numbers.Real):
-        x = float(value)
-        if not math.isfinite(x):
-            return None
-        return float(f"{x:.{digits}g}")
+        return significant(float(value), digits)
     if isinstance(value, Mapping):
         return {str(k): clean(v, digits) for k, v in value.items()}
     if isinstance(value, (list, tuple, set, frozenset)):

@@ -57,8 +57,8 @@ from .messages import (
 )
 
 if TYPE_CHECKING:
+    from ..answer import Estimate
     from ..config import Config
-    from ..live import Estimate
 
 log = logging.getLogger(__name__)
 #: At most one log line per this many seconds for Home Assistant's ``online`` messages

@@ -20,10 +20,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .. import config as config_mod
+from ..answer import Estimate
 from ..dsp.stats import median
 from ..errors import BladesonarError
 from ..io.config_file import load_config
-from ..live import Estimate, LiveAnalyzer
+from ..live import LiveAnalyzer
 from . import learner, memory, settings_store
 from .airflow_watch import AirflowWatch
 from .audio import AudioIO, PulseBlock
