@@ -550,7 +550,7 @@ def test_state_templates_give_words_for_people_and_none_when_not_known():
         (confirming, {"rotating": "ON", "rpm": "None"}),
     ]
     for i, (est, want) in enumerate(cases):
-        running = hold.update(publish._direction_of(est), "ok", float(i))
+        running = hold.update(publish._kind_of(est), "ok", float(i))
         got = states_of(M.state_payload(est, t=T0, running=running), "state")
         for k, v in want.items():
             assert got[k] == v, (i, est.direction, k, got[k])

@@ -47,8 +47,9 @@ class Kind(enum.StrEnum):
 
 _KIND_OF: dict[str, Kind] = {Direction.SAME: Kind.SAME, Direction.REVERSED: Kind.REVERSED,
             Direction.STOPPED: Kind.STOPPED}
-#: The kinds that turn.
-TURNING_KINDS = (Kind.SAME, Kind.REVERSED, Kind.TURNING)
+#: The kinds that turn a known way, and those that turn at all.
+WAY_KINDS = (Kind.SAME, Kind.REVERSED)
+TURNING_KINDS = (*WAY_KINDS, Kind.TURNING)
 
 
 class RateState(enum.StrEnum):
@@ -77,6 +78,10 @@ class EventKind(enum.StrEnum):
     def motion(self) -> bool:
         """An event of the fan's, not of the reference's."""
         return not self.startswith("reference_")
+
+
+#: The fan's events, in the order they are listed (Home Assistant's event types).
+MOTION_EVENTS = tuple(k for k in EventKind if k.motion)
 
 
 #: Decimal places each float of an answer keeps where it is published (``analyze``'s

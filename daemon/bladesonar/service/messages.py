@@ -37,7 +37,16 @@ import time
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from ..answer import SIGNIFICANT_DIGITS, Estimate, significant
+from ..answer import (
+    MOTION_EVENTS,
+    SIGNIFICANT_DIGITS,
+    WAYS,
+    Direction,
+    Estimate,
+    EventKind,
+    Kind,
+    significant,
+)
 
 if TYPE_CHECKING:
     from ..config import Config
@@ -46,12 +55,12 @@ if TYPE_CHECKING:
 ONLINE = "online"
 OFFLINE = "offline"
 
-#: Motion events (transitions.py) and the reference's events (the runner).
-MOTION_EVENTS = ("started", "stopped", "reversed")
-REFERENCE_EVENTS = ("learned", "learn_failed", "forgotten", "direction_set", "stale",
-                    "missing", "invalid")
-#: Event kinds the daemon publishes (``reference_<x>`` for each of REFERENCE_EVENTS).
-EVENT_KINDS = (*MOTION_EVENTS, *(f"reference_{k}" for k in REFERENCE_EVENTS))
+#: The reference's events (service/reference_keeper.py) as Home Assistant's event types
+#: name them: each ``reference_<x>`` of :class:`answer.EventKind` as ``<x>``.
+REFERENCE_EVENTS = tuple(k.removeprefix("reference_") for k in EventKind if not k.motion)
+#: Event kinds the daemon publishes: the fan's (:data:`answer.MOTION_EVENTS`), then the
+#: reference's.
+EVENT_KINDS = tuple(EventKind)
 
 #: The daemon's status (state ``status``, the status topic, Home Assistant's Status):
 #: ``starting`` until the first estimate or problem; ``learning`` while it records and
@@ -240,8 +249,8 @@ def state_payload(estimate: Estimate | Mapping[str, Any] | None, t: float | None
         else dict(estimate.fields())
     out: dict[str, Any] = {k: fields.get(k) for k in STATE_KEYS}
     if out["direction"] is None:
-        out["direction"] = "unknown"
-    if out["direction"] == "unknown":
+        out["direction"] = Direction.UNKNOWN.value
+    if out["direction"] == Direction.UNKNOWN:
         out["confidence"] = None
     if out["airflow"] not in ("down", "up"):
         out["airflow"] = "unknown"
@@ -272,11 +281,12 @@ class RunningHold:
         self.value: bool | None = None
         self._unknown_since: float | None = None
 
-    def update(self, direction: str | None, status: str, now: float) -> bool | None:
-        """The held value after an answer of ``direction`` at monotonic time ``now``
-        (``turning``: turning, its direction in doubt, see :func:`motion_of`)."""
-        if direction in ("same", "reversed", "stopped", "turning"):
-            self.value = direction != "stopped"
+    def update(self, kind: str | None, status: str, now: float) -> bool | None:
+        """The held value after an answer of ``kind`` (a :class:`answer.Kind`: ``turning``
+        for a fan turning whose direction is in doubt; None or any other word: nothing
+        known) at monotonic time ``now``."""
+        if kind in tuple(Kind):
+            self.value = kind != Kind.STOPPED
             self._unknown_since = None
         elif status not in HOLD_STATUSES:
             self.value, self._unknown_since = None, None
@@ -541,7 +551,7 @@ _ENTITIES: tuple[tuple[str, str, str, dict[str, Any]], ...] = (
                            "{% elif value_json.running %}ON{% else %}OFF{% endif %}")}),
     ("sensor", "direction", "state", {
         "name": "Direction to reference", "device_class": "enum",
-        "options": ["same", "reversed", "stopped"],
+        "options": [d.value for d in (*WAYS, Direction.STOPPED)],
         "value_template": _DIRECTION_TEMPLATE, "icon": "mdi:compare-horizontal"}),
     ("sensor", "rate", "state", {
         "name": "Rotation rate", "device_class": "frequency", "unit_of_measurement": "Hz",
