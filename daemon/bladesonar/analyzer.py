@@ -714,6 +714,7 @@ class PulseAnalyzer:
         # the short meter sees no change beyond noise: the fan may be coming to rest, and
         # a track coasting on is no direction to check against its mirror
         self._quiet = still < self._decide_settings.still_threshold
+        args: dict[str, Any]       # (decide's keywords, given twice below)
         args = dict(still=still, accel=accel * prf,
                     changing_odds=self.tracker.follower_weight,
                     at_rest=self.static.frozen, seen_still=self._seen_still(),

@@ -35,7 +35,7 @@ import numbers
 import re
 import time
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, TypedDict
 
 from ..answer import (
     MOTION_EVENTS,
@@ -95,6 +95,35 @@ RUNNING_HOLD_S = 60.0
 #: Statuses under which ``running`` is held: the analysis (or the learning that follows
 #: a Forget) goes on and will name the state again. Any other status makes it unknown.
 HOLD_STATUSES = ("starting", "ok", "learning", "airflow_contradiction")
+
+
+class StatsPayload(TypedDict):
+    """The runner's stats (``Service.stats``): the health counters a user can alert on,
+    then the detail; :func:`stats_payload` adds ``time``."""
+
+    started_at: str
+    uptime_s: float
+    cpu_share: float | None
+    pulses_processed: int
+    dropped_pulses: int
+    xruns: int
+    reconnects: int
+    dropped_events: int
+    clock_ppm: float | None
+    device: dict[str, Any] | None
+    """Clipped coupling, gain wander, bursts, the room's tail (docs/audio.md)."""
+    audio_restarts: int
+    latency_ms: dict[str, float] | None
+    """From a completed capture period to its state sent: median, max, n."""
+    reloads: int
+    reload_errors: int
+    signal_errors: int
+    references_learned: int
+    learn_failures: int
+    commands: int
+    commands_refused: int
+    fit: float | None
+    audio: dict[str, Any]
 
 
 class Message(NamedTuple):

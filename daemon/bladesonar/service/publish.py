@@ -93,7 +93,7 @@ class Publisher(Protocol):
 
     def publish_event(self, kind: str, **details: Any) -> None: ...
 
-    def publish_stats(self, stats: dict[str, Any]) -> None: ...
+    def publish_stats(self, stats: Mapping[str, Any]) -> None: ...
 
     def take_commands(self) -> list[Command]:
         """Commands received since the last call, validated and rate-limited."""
@@ -442,7 +442,7 @@ class MqttPublisher:
             else:
                 self._queue([msg])
 
-    def publish_stats(self, stats: dict[str, Any]) -> None:
+    def publish_stats(self, stats: Mapping[str, Any]) -> None:
         """Retained stats with ``time`` (and this publisher's counters if missing)."""
         with self._lock:
             extra = {"reconnects": self._reconnects, "dropped_events": self._dropped}
@@ -825,7 +825,7 @@ class StdoutPublisher:
     def publish_event(self, kind: str, **details: Any) -> None:
         self._emit(event_message(self.topics, event_payload(kind, details)))
 
-    def publish_stats(self, stats: dict[str, Any]) -> None:
+    def publish_stats(self, stats: Mapping[str, Any]) -> None:
         extra = {"reconnects": 0, "dropped_events": self._dropped}
         self._emit(stats_message(self.topics, stats_payload(stats, extra=extra)))
 
