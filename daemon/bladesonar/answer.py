@@ -46,7 +46,7 @@ class Kind(enum.StrEnum):
 
 
 _KIND_OF: dict[str, Kind] = {Direction.SAME: Kind.SAME, Direction.REVERSED: Kind.REVERSED,
-            Direction.STOPPED: Kind.STOPPED}
+                             Direction.STOPPED: Kind.STOPPED}
 #: The kinds that turn a known way, and those that turn at all.
 WAY_KINDS = (Kind.SAME, Kind.REVERSED)
 TURNING_KINDS = (*WAY_KINDS, Kind.TURNING)
