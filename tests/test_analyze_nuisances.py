@@ -107,7 +107,7 @@ def test_a_dry_quiet_device_shows_nothing(scene):
     x, _ = simulate(scene, config.Config(), 16.0, f"ccw:{REF_RATE}:16", snr_db=10.0, seed=1,
                     include_paths=False)
     dv = build_reference(x, config.Config(), "ccw").meta["device"]
-    assert dv["clipped_coupling"] == 0 and dv["burst_pulses"] == 0
+    assert dv is not None and dv["clipped_coupling"] == 0 and dv["burst_pulses"] == 0
     assert dv["rt60_s"] == 0 and dv["gain_wander_db"] < 0.5
 
 
@@ -149,7 +149,9 @@ def test_a_reference_from_a_fully_clipped_coupling(scene):
                         nuisances=Nuisances(**SPEAKER), include_paths=False)
     assert truth["summary"]["clipped_samples"] > 10 * len(truth["pulses"])
     ref = build_reference(x, config.Config(), "ccw")
-    assert abs(ref.meta["rate_hz"] - 0.45) < 0.005 and ref.meta["device"]["clipped_coupling"] == 1
+    dv = ref.meta["device"]
+    assert abs(ref.meta["rate_hz"] - 0.45) < 0.005 and dv is not None \
+        and dv["clipped_coupling"] == 1
 
 
 def test_a_clipped_coupling_that_does_not_ring_keeps_its_pulses_under_drift(scene):
@@ -205,8 +207,8 @@ def test_a_strong_wall_beside_the_sensor_is_not_taken_for_the_fan(name):
     ref = build_reference(x, cfg, "cw")
     d = sc.sensor_fan_distance_m
     nearest = float(np.sqrt(d * d - sc.tip_radius_m ** 2))
-    assert abs(ref.meta["target_range_m"] - nearest) < 0.15, (ref.meta["target_range_m"],
-                                                               nearest)
+    got = ref.meta["target_range_m"]
+    assert got is not None and abs(got - nearest) < 0.15, (got, nearest)
     assert ref.meta["rate_hz"] == pytest.approx(rate, rel=1e-3)
 
 

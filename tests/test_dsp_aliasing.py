@@ -125,7 +125,7 @@ def test_a_trusted_rate_keeps_its_answer_and_the_note_becomes_a_warning():
     plain = decide(**common)
     d = decide(**common, alias_gap=0.4, alias_note="moved off an alias")
     assert (d.direction, d.rotation, d.confidence) == ("reversed", "cw", plain.confidence)
-    assert d.warnings == ["moved off an alias"] and not plain.warnings
+    assert d.warnings == ("moved off an alias",) and not plain.warnings
 
 
 # ---- the mirror check: a track's path against its mirror image (flat fans' direct echo

@@ -13,7 +13,7 @@ PKG = "bladesonar"
 #: alone is the package's ``__init__`` (its version); a package name covers its modules.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("ground", ("bladesonar", "bladesonar.text", "bladesonar.errors", "bladesonar.schema",
-                "bladesonar.blas")),
+                "bladesonar.blas", "bladesonar.answer")),
     ("settings", ("bladesonar.config", "bladesonar.config_doc")),
     ("computation", ("bladesonar.waveform", "bladesonar.dsp", "bladesonar.sim",
                      "bladesonar.imaging", "bladesonar.reference_fit",

@@ -131,11 +131,11 @@ def test_daemon_and_analyze_send_the_same_events_on_simulated_use(repo_root):
 def test_a_changing_rate_is_carried_to_the_present_in_closed_form():
     """predicted(): rate + change * ahead, for 'changing' answers only, never below the
     floor, and at most MAX_AHEAD_S ahead."""
-    from bladesonar.dsp.decide import Decision
+    from bladesonar.answer import Decision, Direction
     from bladesonar.live import MAX_AHEAD_S, predicted
 
     def d(state, rate=0.3, change=-0.1, rel=-0.6):
-        return Decision("reversed", "cw", rel, rate, rate * 60, 0.9, "", [],
+        return Decision(Direction.REVERSED, "cw", rel, rate, rate * 60, 0.9, "", (),
                         rate_state=state, rate_change_hz_s=change)
 
     got = predicted(d("changing"), 0.2, 0.05)
@@ -195,8 +195,7 @@ def test_the_published_rate_on_a_ramp_is_the_fans_at_the_time_it_is_published(
 def test_a_fan_turning_with_its_direction_in_doubt_is_published_as_rotating():
     """The state's ``rotating`` (Home Assistant's Running) is on for a fan known to turn
     whose direction is in doubt, off only when stopped, unknown when nothing is known."""
-    from bladesonar.dsp.decide import Decision
-    from bladesonar.live import Estimate
+    from bladesonar.answer import Decision, Estimate
 
     def est(direction, turning=False):
         d = Decision(direction, None, None, 0.4 if direction != "stopped" else 0.0, None,

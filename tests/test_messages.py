@@ -11,11 +11,9 @@ import numpy as np
 import pytest
 
 from bladesonar import __version__, config
-from bladesonar.dsp.decide import Decision
-from bladesonar.live import Estimate
+from bladesonar.answer import Decision, Direction, Estimate, RateState
 from bladesonar.service import messages as M
 from bladesonar.service import publish
-from bladesonar.transitions import Direction
 
 T0 = 1_700_000_000.25  # 2023-11-14T22:13:20.250Z
 
@@ -26,8 +24,8 @@ def cfg_with(**mqtt):
 
 def live_estimate() -> Estimate:
     """What LiveAnalyzer.estimate() returns: a Decision plus the live fields."""
-    d = Decision("reversed", "cw", -0.70069, 0.35036, 21.021, 0.9718,
-                 "relative rate -0.7007 +- 0.0208", rate_state="changing",
+    d = Decision(Direction.REVERSED, "cw", -0.70069, 0.35036, 21.021, 0.9718,
+                 "relative rate -0.7007 +- 0.0208", rate_state=RateState.CHANGING,
                  rate_change_hz_s=-0.04512)
     return Estimate.from_decision(d, window_s=4.0, reference="0123456789ab")
 
@@ -135,7 +133,7 @@ def test_state_payload_of_nothing_known_has_a_status_and_its_detail():
 
 
 def test_confidence_only_of_a_known_answer():
-    d = Decision("unknown", None, 0.1, 0.045, 2.7, 0.5, "confirming a stop")
+    d = Decision(Direction.UNKNOWN, None, 0.1, 0.045, 2.7, 0.5, "confirming a stop")
     e = Estimate.from_decision(d, window_s=4.0, reference="ab")
     p = M.state_payload(e, t=T0)
     assert p["confidence"] is None and p["rate_hz"] == 0.045     # the raw rate stays
@@ -168,8 +166,8 @@ def test_running_goes_unknown_after_the_hold_and_on_any_other_status():
 
 
 def test_estimate_from_a_decision_rounds_like_the_offline_answer():
-    d = Decision("same", "ccw", 0.123456789, 0.4567891, 27.4073, 0.912345, "r",
-                 warnings=["w"], rate_state="settled", rate_change_hz_s=0.0012345)
+    d = Decision(Direction.SAME, "ccw", 0.123456789, 0.4567891, 27.4073, 0.912345, "r",
+                 warnings=("w",), rate_state=RateState.SETTLED, rate_change_hz_s=0.0012345)
     e = Estimate.from_decision(d, window_s=5.0, reference="ab")
     off = d.as_dict()
     for k in ("relative_rate", "rate_hz", "rpm", "rate_change_hz_s", "confidence"):
@@ -513,7 +511,8 @@ def states_of(payload: dict, topic_key: str) -> dict[str, str]:
 
 def _estimate(direction, rotation, rate):
     return Estimate(Direction(direction), rotation, None if rate is None else 1.0, rate,
-                    None if rate is None else rate * 60, "settled", 0.0, 0.9, "r", 4.0, "ab")
+                    None if rate is None else rate * 60, 0.9, "r", rate_state=RateState.SETTLED,
+                    rate_change_hz_s=0.0, window_s=4.0, reference="ab")
 
 
 def test_state_templates_give_words_for_people_and_none_when_not_known():
@@ -522,10 +521,11 @@ def test_state_templates_give_words_for_people_and_none_when_not_known():
     only when stopped), Running never unknown between known states."""
     c = configs()
     hold = M.RunningHold()
-    confirming = Estimate(Direction("unknown"), None, 0.01, 0.004, 0.24, None, None,
-                          0.5, "confirming a stop", 4.0, "ab")
-    doubt = Estimate(Direction("unknown"), None, None, 0.4, 24.0, "settled", None, 0.3,
-                     "direction in doubt", 4.0, "ab", turning=True)
+    confirming = Estimate(Direction.UNKNOWN, None, 0.01, 0.004, 0.24, 0.5,
+                          "confirming a stop", window_s=4.0, reference="ab")
+    doubt = Estimate(Direction.UNKNOWN, None, None, 0.4, 24.0, 0.3, "direction in doubt",
+                     rate_state=RateState.SETTLED, turning=True, window_s=4.0,
+                     reference="ab")
     cases = [
         (_estimate("unknown", None, None), {"rotation": "None", "direction": "None",
                                             "rotating": "None", "rate": "None",
@@ -550,7 +550,7 @@ def test_state_templates_give_words_for_people_and_none_when_not_known():
         (confirming, {"rotating": "ON", "rpm": "None"}),
     ]
     for i, (est, want) in enumerate(cases):
-        running = hold.update(publish._direction_of(est), "ok", float(i))
+        running = hold.update(publish._kind_of(est), "ok", float(i))
         got = states_of(M.state_payload(est, t=T0, running=running), "state")
         for k, v in want.items():
             assert got[k] == v, (i, est.direction, k, got[k])

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from bladesonar import config
-from bladesonar.dsp.decide import Decision
+from bladesonar.answer import Decision, Direction, Kind
 from bladesonar.io.scene_file import load_scene
 from bladesonar.offline import analyze
 from bladesonar.reference_build import build_reference
@@ -298,7 +298,7 @@ def test_state_machine_needs_confirmation_and_fires_between_known_states():
 
 def _doubt(rate=0.4):
     """A fan turning at ``rate`` whose direction is in doubt (its mirror fits as well)."""
-    return Decision("unknown", None, None, rate, None, 0.3, "direction in doubt",
+    return Decision(Direction.UNKNOWN, None, None, rate, None, 0.3, "direction in doubt",
                     turning=True)
 
 
@@ -377,7 +377,7 @@ def test_a_reversal_waits_until_a_fan_could_have_made_it():
         return fired, published, tr
     for hold in (10.0, 0.8):
         fired, published, tr = run(18, then_same=40, hold=hold)
-        assert fired == [] and tr.known == "+"
+        assert fired == [] and tr.known == Kind.SAME
         assert set(published[100:118]) == {"unknown"} and set(published[118:]) == {"same"}
     fired, published, _ = run(60)
     assert fired == [("reversed", 146)]
@@ -713,7 +713,7 @@ def test_slow_new_direction_is_not_taken():
     for i in range(40):
         tr.step(i / 34.0, i, _d("same", 0.4))
     fired = [e for i in range(40, 200) for e in tr.step(i / 34.0, i, _d("reversed", 0.07))[1]]
-    assert fired == [] and tr.known == "+"
+    assert fired == [] and tr.known == Kind.SAME
 
 
 def test_truth_events_of_a_schedule():
@@ -943,7 +943,7 @@ def test_a_sudden_reversal_needs_a_line_that_beat_its_mirror():
     that has, it is one after reversal_hold_s (1 s: from pulse 100, at pulse 134)."""
     same = [_d("same", 0.21)] * 100
     fired, published, tr = _walk(same + [_d("reversed", 0.2, checked=False)] * 200)
-    assert fired == [] and tr.known == "+"
+    assert fired == [] and tr.known == Kind.SAME
     assert set(published[100:]) == {"unknown"}
     fired, _, _ = _walk(same + [_d("reversed", 0.2)] * 60)
     assert fired == [("reversed", 134)]
@@ -955,7 +955,7 @@ def test_a_reversal_through_zero_needs_no_mirror_check():
     is later than the 0.67 s a fan needs through zero at 0.3 Hz/s, so a new line, not
     yet checked against its mirror, confirms at its 17th answer (pulse 79 + 16)."""
     down = [_d("same", 0.3 - 0.15 * i / 34) for i in range(46)]
-    gap = [Decision("unknown", None, None, None, None, 0.0, "no match")] * 33
+    gap = [Decision(Direction.UNKNOWN, None, None, None, None, 0.0, "no match")] * 33
     up = [_d("reversed", 0.1 + 0.15 * i / 34, checked=False) for i in range(40)]
     fired, _, _ = _walk(down + gap + up)
     assert fired == [("reversed", 79 + 16)]
@@ -991,14 +991,14 @@ def test_in_a_doubtful_room_a_fan_seen_turning_throughout_does_not_reverse():
     other way is published as unknown. Where the room is not doubtful they do not, and
     the 10 s suffice for a reversal: it fires at the 17th answer."""
     def doubt(room):
-        return Decision("unknown", None, None, 0.2, None, 0.3, "direction in doubt",
+        return Decision(Direction.UNKNOWN, None, None, 0.2, None, 0.3, "direction in doubt",
                         turning=True, doubtful_room=room)
     def other(room):
-        return Decision("reversed", None, None, 0.2, None, 0.9, "test",
+        return Decision(Direction.REVERSED, None, None, 0.2, None, 0.9, "test",
                         mirror_checked=True, doubtful_room=room)
     same = [_d("same", 0.2)] * 40
     fired, published, tr = _walk(same + [doubt(True)] * 340 + [other(True)] * 100)
-    assert fired == [] and tr.known == "+" and set(published[380:]) == {"unknown"}
+    assert fired == [] and tr.known == Kind.SAME and set(published[380:]) == {"unknown"}
     fired, _, _ = _walk(same + [doubt(False)] * 340 + [other(False)] * 100)
     assert fired == [("reversed", 380 + 16)]
 
@@ -1011,11 +1011,11 @@ def test_weak_answers_at_the_same_speed_keep_a_fan_from_reversing_at_once():
     speeds far from it (alias lines, 1.1 Hz) show nothing, and 10 s suffice for a
     reversal: it fires at the 17th answer."""
     def weak(rate):
-        return Decision("unknown", None, None, rate, None, 0.3, "weak evidence")
+        return Decision(Direction.UNKNOWN, None, None, rate, None, 0.3, "weak evidence")
     same = [_d("same", 0.36)] * 40
     near = [weak(0.33 + 0.05 * (i % 2)) for i in range(340)]
     other = [_d("reversed", 0.36, checked=False)] * 100
     fired, published, tr = _walk(same + near + other)
-    assert fired == [] and tr.known == "+" and set(published[380:]) == {"unknown"}
+    assert fired == [] and tr.known == Kind.SAME and set(published[380:]) == {"unknown"}
     fired, _, _ = _walk(same + [weak(1.1)] * 340 + other)
     assert fired == [("reversed", 380 + 16)]

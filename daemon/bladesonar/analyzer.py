@@ -21,11 +21,12 @@ from typing import Any
 
 import numpy as np
 
+from .answer import WAYS, Decision, Direction, RateState
 from .config import Config
 from .dsp import aliasing, rangescale
 from .dsp import device as dev
 from .dsp import fingerprint as fp
-from .dsp.decide import Decision, MotionMeter, decide, noise_threshold
+from .dsp.decide import MotionMeter, decide, noise_threshold
 from .dsp.pulses import DROPOUT, OK, WARMUP, AlignedPulses, PulseAligner
 from .dsp.stats import median
 from .dsp.tracking import Tracker, TrackState
@@ -232,7 +233,7 @@ class PulseAnalyzer:
     #: (time, rate in Hz) of the last known state published (_bound_rate)
     _anchor: tuple[float, float] | None = None
     _untrusted: tuple[float, float] | None = None   # (t, UNTRUSTED_FACTOR x speed)
-    _known_dir: str | None = None               # the published direction, and since when
+    _known_dir: Direction | None = None         # the published direction, and since when
     _known_t: float = 0.0
 
     def __post_init__(self) -> None:
@@ -532,7 +533,7 @@ class PulseAnalyzer:
         if st is None or st.direction != self._known_dir:
             self._known_dir = None if st is None else st.direction
             self._known_t = t_s
-        if st is not None and st.direction in ("same", "reversed", "stopped"):
+        if st is not None and st.direction in (*WAYS, Direction.STOPPED):
             v = float(st.rate_hz or 0.0)
             # a speed above three times the floor bounds only once it has been published
             # for ANCHOR_TRUST_S: a first answer on a wrong line (near 1/16 blade period
@@ -576,12 +577,12 @@ class PulseAnalyzer:
         its strong static echoes), and an old estimate would leave that drift in every
         residual. True when the estimate changed."""
         st = self.state
-        turning = st is not None and (st.direction in ("same", "reversed") or st.turning) \
+        turning = st is not None and (st.direction in WAYS or st.turning) \
             and (st.rate_hz or 0.0) >= 3.0 * self.cfg.tracking.rate_floor_hz
         if turning:
             self._turning_k = k
         if not self.static.frozen:
-            if d.direction == "stopped" and self._turning_k is not None:
+            if d.direction == Direction.STOPPED and self._turning_k is not None:
                 held = [m for j, m in self.static.history if j <= self._turning_k]
                 if held:
                     self.static.mean[:] = held[-1]
@@ -606,14 +607,14 @@ class PulseAnalyzer:
         decision's own rate (the follower is the livelier of the two, and after a
         spurious lock near rest its rate alone would clear the rate needed for a new
         direction)."""
-        if d.direction not in ("same", "reversed") or d.relative_rate is None:
+        if d.direction not in WAYS or d.relative_rate is None:
             return d
         tr = self.tracker
         if tr.x is None:
             return d
         now, _ = tr.rate_now
         rate = now
-        if d.rate_state == "settled":
+        if d.rate_state == RateState.SETTLED:
             mean = self.window_rate()
             steady = mean if mean is not None else float(tr.x[1])
             if steady * now > 0 and abs(steady - now) <= SETTLED_AGREE * abs(steady):
@@ -641,7 +642,7 @@ class PulseAnalyzer:
             motion, _ = self.motion.statistic()
             return motion >= self.cfg.tracking.motion_threshold
         resting = self.static.frozen or self._quiet or (
-            self.decided is not None and self.decided.direction == "stopped")
+            self.decided is not None and self.decided.direction == Direction.STOPPED)
         self.aliases.check(self.tracker, accel=self._clear_accel(), moving=moving,
                            resting=resting)
 
@@ -713,6 +714,7 @@ class PulseAnalyzer:
         # the short meter sees no change beyond noise: the fan may be coming to rest, and
         # a track coasting on is no direction to check against its mirror
         self._quiet = still < self._decide_settings.still_threshold
+        args: dict[str, Any]       # (decide's keywords, given twice below)
         args = dict(still=still, accel=accel * prf,
                     changing_odds=self.tracker.follower_weight,
                     at_rest=self.static.frozen, seen_still=self._seen_still(),
@@ -730,24 +732,25 @@ class PulseAnalyzer:
                     settings=self._decide_settings)
         d = decide(**args)
         mean = self.window_rate()
-        if d.rate_state == "settled" and d.relative_rate is not None and mean is not None \
-                and mean * rate > 0:
+        if d.rate_state == RateState.SETTLED and d.relative_rate is not None \
+                and mean is not None and mean * rate > 0:
             # settled: the window's mean rate (a wobble of a few per cent averages out; the
             # tracked rate is the latest and lags it); a changing one is the follower's
             args["rate"] = mean
             d = decide(**args)
-        d.mirror_checked = locked and self.aliases.mirror_checked(self.tracker)
-        d.doubtful_room = self.aliases.doubtful
+        d = replace(d, mirror_checked=locked and self.aliases.mirror_checked(self.tracker),
+                    doubtful_room=self.aliases.doubtful)
         misfit = self.scale_misfit
-        if misfit and d.direction in ("same", "reversed"):
-            return Decision("unknown", None, d.relative_rate, d.rate_hz, d.rpm,
+        if misfit and d.direction in WAYS:
+            return Decision(Direction.UNKNOWN, None, d.relative_rate, d.rate_hz, d.rpm,
                             min(d.confidence, self._decide_settings.min_confidence) * 0.5,
                             misfit, d.warnings)
         if self._rescale is not None and not any("rescaled" in w for w in d.warnings):
-            d.warnings.append(
+            d = replace(d, warnings=(
+                *d.warnings,
                 f"the room's echoes moved by {100 * (self.scale - 1):+.2f} % (about "
                 f"{rangescale.degrees(self.scale, self.ref.gate.c):+.0f} degrees C since the "
-                "reference): ranges rescaled to the reference's")
+                "reference): ranges rescaled to the reference's"))
         return d
 
 

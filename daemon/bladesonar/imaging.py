@@ -26,6 +26,7 @@ import numpy as np
 from scipy import fft as sp_fft
 from scipy import optimize
 
+from .answer import Direction
 from .dsp import fingerprint as fp
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
 from .dsp.pulses import AlignedPulses, align
@@ -501,7 +502,7 @@ def track_series(rows: list[dict]) -> TrackSeries:
         rel = np.array([_num(r.get("relative_rate")) for r in rows])
         conf = np.array([_num(r.get("confidence")) for r in rows])
         out = np.array([bool(r.get("outlier", False)) for r in rows])
-        dirs = np.array([str(r.get("direction", "unknown")) for r in rows])
+        dirs = np.array([str(r.get("direction", Direction.UNKNOWN)) for r in rows])
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"not analyze --track rows ({exc!r}); make them with 'bladesonar "
                          "analyze --track'") from exc
@@ -516,7 +517,7 @@ def track_series(rows: list[dict]) -> TrackSeries:
     # matched phases on the track's branch (or their own value while unlocked)
     ref = np.where(np.isfinite(track), track, z)
     matched = ref + ((z - np.where(np.isfinite(tp), tp, z) + 0.5) % 1.0 - 0.5)
-    sign = np.where(dirs == "same", 1, np.where(dirs == "reversed", -1, 0))
+    sign = np.where(dirs == Direction.SAME, 1, np.where(dirs == Direction.REVERSED, -1, 0))
     known = np.nonzero(sign)[0]
     rev = [t[known[i]] for i in range(1, len(known)) if sign[known[i]] != sign[known[i - 1]]]
     return TrackSeries(t, track, sd, matched, q, out, rel, conf, dirs, np.array(rev))

@@ -10,17 +10,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from .analyzer import PulseAnalyzer, WarmStart, device_figures, new_aligner
+from .answer import WAYS, Decision, Estimate, RateState
 from .config import Config
-from .dsp.decide import Decision
 from .dsp.pulses import DROPOUT, OK, AlignedPulses
 from .reference_build import Reference
-from .transitions import Direction, Event
+from .transitions import Event
 
 #: Samples beyond the gate that the fractional-shift interpolator reads.
 _INTERP_MARGIN = 32
@@ -38,7 +38,7 @@ def predicted(d: Decision, ahead_s: float, floor_hz: float) -> Decision:
     the next pulse's edge is in, and the daemon gathers capture periods in blocks: on a
     0.08 Hz/s spin-up the rate decided on the pulse was 0.008 Hz behind the fan when it
     was handed over one period at a time, 0.015 Hz in blocks of 8 (tests/test_live.py)."""
-    if d.rate_state != "changing" or d.rate_hz is None or d.rate_change_hz_s is None \
+    if d.rate_state != RateState.CHANGING or d.rate_hz is None or d.rate_change_hz_s is None \
             or d.relative_rate is None or not ahead_s > 0:
         return d
     change = d.rate_change_hz_s
@@ -60,82 +60,6 @@ def capture_pulses(chunks: Iterable[np.ndarray], pri: int) -> Iterator[tuple[int
             pos += pri
             yield pos, buf[i * pri:(i + 1) * pri]
         buf = buf[n * pri:]
-
-
-def _rounded(v: float | None, digits: int) -> float | None:
-    return None if v is None or not math.isfinite(v) else round(float(v), digits)
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """The daemon's current answer: one window's decision (:class:`dsp.decide.Decision`,
-    as confirmed by the state machine) plus what the service adds at run time: the window
-    it covers and the reference it was matched against.
-
-    This is what the runner and the messages receive (``service/messages.py`` turns it
-    into the state payload with :meth:`fields`).
-    """
-
-    direction: Direction
-    """same, reversed, stopped or unknown (relative to the reference's direction)."""
-    rotation: str | None = None
-    """cw or ccw when the reference's direction is known and the fan turns, else None."""
-    relative_rate: float | None = None
-    rate_hz: float | None = None
-    rpm: float | None = None
-    rate_state: str | None = None
-    """settled or changing while turning, else None."""
-    rate_change_hz_s: float | None = None
-    confidence: float = 0.0
-    reason: str = ""
-    window_s: float | None = None
-    """Seconds of pulses the decision covers (shorter during the warm-up)."""
-    reference: str | None = None
-    """Id of the reference in use (first 12 hex digits of its file's sha256)."""
-    warnings: tuple[str, ...] = field(default=())
-    turning: bool = False
-    """The fan turns though its direction is not known (:attr:`Decision.turning`)."""
-
-    @property
-    def rotating(self) -> bool | None:
-        """True when turning either way (its direction known or not), False when
-        stopped, None when not known."""
-        if self.direction is Direction.UNKNOWN:
-            return True if self.turning else None
-        return self.direction is not Direction.STOPPED
-
-    @property
-    def known(self) -> bool:
-        return self.direction is not Direction.UNKNOWN
-
-    @classmethod
-    def from_decision(cls, d: Decision, *, window_s: float | None,
-                      reference: str | None) -> Estimate:
-        return cls(direction=Direction(d.direction), rotation=d.rotation,
-                   relative_rate=_rounded(d.relative_rate, 5), rate_hz=_rounded(d.rate_hz, 5),
-                   rpm=_rounded(d.rpm, 3), rate_state=d.rate_state,
-                   rate_change_hz_s=_rounded(d.rate_change_hz_s, 4),
-                   confidence=_rounded(d.confidence, 4) or 0.0, reason=d.reason,
-                   window_s=window_s, reference=reference, warnings=tuple(d.warnings),
-                   turning=d.turning and d.direction != Direction.STOPPED.value)
-
-    @classmethod
-    def unknown(cls, reason: str, *, reference: str | None = None) -> Estimate:
-        """Nothing is known (no reference yet, no signal, re-aligning)."""
-        return cls(direction=Direction.UNKNOWN, reason=reason, reference=reference)
-
-    def fields(self) -> dict[str, Any]:
-        """The state message's estimate fields, in the published order (warnings only
-        when there are some)."""
-        out: dict[str, Any] = {
-            "direction": self.direction.value, "rotation": self.rotation,
-            "rotating": self.rotating, "rate_hz": self.rate_hz, "rpm": self.rpm,
-            "relative_rate": self.relative_rate, "rate_state": self.rate_state,
-            "rate_change_hz_s": self.rate_change_hz_s, "confidence": self.confidence,
-            "window_s": self.window_s, "reference": self.reference, "reason": self.reason}
-        if self.warnings:
-            out["warnings"] = list(self.warnings)
-        return out
 
 
 class LiveAnalyzer:
@@ -264,7 +188,7 @@ class LiveAnalyzer:
             return None
         motion, _ = an.motion.statistic()
         moving = bool(motion >= self.cfg.tracking.motion_threshold) or \
-            an.state.direction in (Direction.SAME.value, Direction.REVERSED.value)
+            an.state.direction in WAYS
         _, quality = an.recent_match()
         return moving, quality
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -45,6 +45,48 @@ TARGET_BAND = 0.7
 REFERENCE_VERSION = 1
 
 
+class ReferenceMeta(TypedDict, total=False):
+    """A reference's metadata (the file's ``meta`` member, JSON): what it was made from
+    and with. :func:`build_reference` writes every key but ``direction_contrast`` (only
+    when it could be measured); a file is checked for the keys it must hold when it is
+    read (``io.reference``), and the older files lack some. ``id`` is the daemon's (the
+    file's sha256, 12 digits), never stored."""
+
+    format: str
+    version: int
+    file_format: int
+    sha256: str
+    id: str
+    depends: dict[str, Any]
+    """The config values the reference is only valid with (:func:`depends_on`)."""
+    gate_samples: list[int]
+    gate_m: list[float]
+    range_convention: str
+    cycles_per_pulse: float
+    blade_rate_hz: float
+    rate_hz: float
+    rpm: float
+    prf_hz: float
+    periods_folded: float
+    phase_bins: int
+    quality: float
+    line_snr: float
+    explained_lines: float
+    direction: str
+    """cw, ccw or unknown: the way the fan turned while it was recorded."""
+    pulses: int
+    used_pulses: int
+    dropped_pulses: int
+    target_range_m: float | None
+    features: str
+    min_bin_weight: float
+    device: dict[str, Any] | None
+    """The device figures (dsp/device.py) as they were; a file may hold null."""
+    warmup_pulses: int
+    warnings: list[str]
+    direction_contrast: float
+
+
 @dataclass
 class Reference:
     """A stored reference rotation: the angular table and what it depends on.
@@ -55,14 +97,14 @@ class Reference:
         Feature vectors by blade phase (bin b at phase b/B).
     mean_pulse : ndarray, shape (L,)
         The reference's static part (mean gated pulse).
-    meta : dict
+    meta : ReferenceMeta
         JSON-able: ``depends`` (config values that must match at analysis), blade and
         rotation rate, direction, periods folded, quality, gate, ...
     """
 
     table: np.ndarray
     mean_pulse: np.ndarray
-    meta: dict[str, Any]
+    meta: ReferenceMeta
 
     @property
     def cycles_per_pulse(self) -> float:
@@ -76,7 +118,7 @@ class Reference:
 
     def summary(self) -> dict[str, Any]:
         """The JSON summary ``bladesonar reference`` prints."""
-        m = self.meta
+        m: dict[str, Any] = dict(self.meta)
         keys = ("blade_rate_hz", "rate_hz", "rpm", "periods_folded", "quality", "gate_m",
                 "pulses", "dropped_pulses", "direction", "phase_bins", "cycles_per_pulse",
                 "target_range_m", "line_snr", "direction_contrast", "features", "device",
@@ -280,7 +322,7 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     dropped = count_dropped(full.status, ended=True)
     if dropped:
         warnings.append(f"{dropped} pulses dropped or corrupt (not used)")
-    meta = {
+    meta: ReferenceMeta = {
         "format": "bladesonar-reference", "version": REFERENCE_VERSION,
         "depends": depends_on(cfg),
         "gate_samples": [gate.start, gate.stop],

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from .answer import MOTION_EVENTS
+
 
 def _pct(v: float | None) -> str:
     return "–" if v is None else f"{100 * v:.0f}"
@@ -222,7 +224,7 @@ def _references_section(refs: dict[str, dict[str, Any]]) -> list[str]:
     return L
 
 
-_KINDS = ("started", "stopped", "reversed")
+_KINDS = MOTION_EVENTS
 
 
 def _latency(r: dict[str, Any]) -> str:

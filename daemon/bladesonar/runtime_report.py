@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from . import config as _config
+from .answer import MOTION_EVENTS, WAYS, EventKind
 from .errors import BladesonarError
 from .offline import analyze
 from .reference_build import Reference, build_reference
@@ -59,10 +60,10 @@ from .sim.score import score_events, true_time, truth_events
 
 ALIAS_NOTE = "|rate| >= PRF / (2 K): the blade phase steps half a period or more per pulse"
 
-TRANSITION_KINDS = ("started", "stopped", "reversed")
 #: Latency targets of issue #10 (s after the truth event of sim/score.py: ``started`` and
 #: ``reversed`` when |rate| passes 0.15 Hz, ``stopped`` when the fan comes to rest).
-TRANSITION_TARGETS_S = {"started": 2.0, "stopped": 3.0, "reversed": 2.0}
+TRANSITION_TARGETS_S: dict[str, float] = {EventKind.STARTED: 2.0, EventKind.STOPPED: 3.0,
+                                          EventKind.REVERSED: 2.0}
 #: ``{d}`` the first direction, ``{o}`` the other, ``{r}`` the rate: a spin-up from rest,
 #: a spin-down to rest, a start, a reversal through zero (truth events 6-17 s apart).
 TRANSITIONS_SCHEDULE = "stop:0:6,{d}:{r}:14~5,stop:0:14~8,{d}:{r}:12~4,{o}:{r}:16~10"
@@ -330,7 +331,7 @@ def run_job(job: Job, scene, cfg: _config.Config, ref: Reference, grid: Grid
                                error=err)
                 else:
                     ans = summary["direction"]
-                    if ans in ("same", "reversed"):
+                    if ans in WAYS:
                         ans = summary["rotation"]
                     rec.update(answer=ans, relative_rate=summary["relative_rate"],
                                confidence=summary["confidence"])
@@ -382,7 +383,7 @@ def _run_nuisance(job: Job, sc, base, grid: Grid) -> list[dict[str, Any]]:
             rec.update(answer="refused", relative_rate=None, confidence=0.0, error=err)
         else:
             ans = summary["direction"]
-            if ans in ("same", "reversed"):
+            if ans in WAYS:
                 ans = summary["rotation"]
             rec.update(answer=ans, relative_rate=summary["relative_rate"],
                        confidence=summary["confidence"], device=summary.get("device"))
@@ -440,12 +441,12 @@ def transitions_schedule(template: str, ratio: float, ref_rate_hz: float
 def score_transitions(truth, events: list[tuple[str, float]]) -> dict[str, Any]:
     """Per kind: truth events, hit latencies (s, + late), missed; and the false events."""
     sc = score_events(truth, events)
-    per = {k: sum(1 for e in truth if e.kind == k) for k in TRANSITION_KINDS}
+    per = {k: sum(1 for e in truth if e.kind == k) for k in MOTION_EVENTS}
     return dict(truth_events=per,
-                latency_s={k: [round(v, 3) for v in sc.latencies(k)] for k in TRANSITION_KINDS},
-                missed={k: sum(1 for e in sc.missed if e.kind == k) for k in TRANSITION_KINDS},
+                latency_s={k: [round(v, 3) for v in sc.latencies(k)] for k in MOTION_EVENTS},
+                missed={k: sum(1 for e in sc.missed if e.kind == k) for k in MOTION_EVENTS},
                 false={k: sum(1 for kind, _ in sc.false if kind == k)
-                       for k in TRANSITION_KINDS},
+                       for k in MOTION_EVENTS},
                 false_events=len(sc.false),
                 false_detail=[(k, round(t, 2)) for k, t in sc.false])
 
@@ -658,7 +659,7 @@ def aggregate_transitions(records: list[dict[str, Any]]) -> list[dict[str, Any]]
     for key in sorted(groups):
         g = groups[key]
         audio = sum(r["audio_s"] for r in g)
-        for kind in TRANSITION_KINDS:
+        for kind in MOTION_EVENTS:
             named = dict(zip(("scene", "blades", "ratio", "snr_db"), key, strict=True))
             rows.append(dict(named, kind=kind, **_transition_row(g, kind, audio)))
     return rows

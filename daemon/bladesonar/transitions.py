@@ -35,7 +35,7 @@ evidence has held for a while:
   from rest (a ``stopped`` answer): a new lock near zero once claimed the old direction
   at 0.26 Hz 0.15 s after the meter saw the fan at rest, and timed from that a true
   reversal waited 0.7 s more;
-* ``turning`` with the direction in doubt (``~``): where no direction is known, a
+* ``turning`` with the direction in doubt (``Kind.TURNING``): where no direction is known, a
   decision that has the fan turning well above the floor but cannot tell which way
   (:attr:`Decision.turning`: a room whose echoes fit the fan's mirror image as well as
   the fan) is a known kind of its own, so a start and a stop still fire in such a room;
@@ -56,22 +56,12 @@ known state fires nothing. Both the daemon and ``analyze --track`` run this same
 
 from __future__ import annotations
 
-import enum
 import math
 from collections import deque
 from dataclasses import dataclass, replace
 from typing import Any
 
-from .dsp.decide import Decision
-
-
-class Direction(str, enum.Enum):  # noqa: UP042  (StrEnum's str() differs: not a lint fix)
-    """Values of the answer's ``direction`` (relative to the reference's own)."""
-
-    SAME = "same"
-    REVERSED = "reversed"
-    STOPPED = "stopped"
-    UNKNOWN = "unknown"
+from .answer import TURNING_KINDS, WAY_KINDS, Decision, Direction, EventKind, Kind, published
 
 
 @dataclass(frozen=True)
@@ -120,23 +110,17 @@ class TransitionSettings:
 class Event:
     """A confirmed transition; ``t_s`` is the stream time of the pulse that confirmed it."""
 
-    kind: str
+    kind: EventKind
     t_s: float
     pulse: int
-    direction: str
+    direction: Direction
     rotation: str | None
     rate_hz: float | None
 
     def details(self) -> dict[str, Any]:
         """The event's payload details (what MQTT subscribers get)."""
-        return {"direction": self.direction, "rotation": self.rotation,
-                "rate_hz": None if self.rate_hz is None or not math.isfinite(self.rate_hz)
-                else round(float(self.rate_hz), 5)}
-
-
-def _kind(direction: str) -> str | None:
-    """The known kind of a direction: 'stopped', '+', '-', or None for unknown."""
-    return {"stopped": "stopped", "same": "+", "reversed": "-"}.get(direction)
+        return {"direction": self.direction.value, "rotation": self.rotation,
+                "rate_hz": published("rate_hz", self.rate_hz)}
 
 
 #: Share of the time a fan needs to reverse (through zero at ``max_reversal_hz_s``, itself
@@ -152,9 +136,6 @@ SUDDEN_SHARE = 0.5
 #: fan slowing to reverse changes speed by less within the few tenths of a second
 #: between answers, while tracks on alias lines read other speeds altogether.
 CHAIN_AGREE = 0.25
-
-#: The kinds that turn: one way, the other, or either ('~': the direction in doubt).
-TURNING = ("+", "-", "~")
 
 
 class Transitions:
@@ -172,10 +153,10 @@ class Transitions:
         self.settings = settings
         self._confirm = max(int(round(settings.confirm_s * prf_hz)), 1)
         self._stop_confirm = max(int(round(settings.stop_confirm_s * prf_hz)), 1)
-        self.known: str | None = None        # confirmed kind: 'stopped', '+', '-', '~'
+        self.known: Kind | None = None       # the confirmed kind
         self.known_decision: Decision | None = None
-        self._cand: str | None = None        # the last known kind answered
-        self._prev_kind: str | None = None   # the kind the previous decision answered
+        self._cand: Kind | None = None       # the last known kind answered
+        self._prev_kind: Kind | None = None  # the kind the previous decision answered
         self._support: deque[tuple[int, int]] = deque()   # (pulse, pulses) for _cand
         self._cand_n = 0
         self._cand_rate = 0.0                # |rate| of the candidate's first answer (Hz)
@@ -185,7 +166,7 @@ class Transitions:
         self._zero_by: float | None = None   # a slowing fan would pass zero by then (s)
         self._slowing_hz_s = 0.0
         self._seen: deque[tuple[float, float]] = deque()   # (t, rate) turning, well above
-        self._seen_kind: str | None = None
+        self._seen_kind: Kind | None = None
         self._last_turning = -math.inf       # the last turning answer (s)
         self._last_turning_hz = 0.0          # and its |rate| (Hz)
         self._run_from = -math.inf           # the start of its unbroken run of answers (s)
@@ -196,43 +177,43 @@ class Transitions:
              ) -> tuple[Decision, list[Event]]:
         """A decision in, standing for the last ``pulses`` pulses (the analysis decides
         every few pulses); (the state to publish, events confirmed now) out."""
-        cand = _kind(d.direction)
-        if cand is None and d.turning and self.known not in ("+", "-"):
-            cand = "~"
+        cand = Kind.of(d.direction)
+        if cand is None and d.turning and self.known not in WAY_KINDS:
+            cand = Kind.TURNING
         slow = self.settings.change_factor * self.settings.rate_floor_hz
-        if cand in TURNING and (cand != self.known or self._past_zero(t_s, cand)) \
+        if cand in TURNING_KINDS and (cand != self.known or self._past_zero(t_s, cand)) \
                 and not (d.rate_hz or 0.0) >= slow:
             # a new direction (a start, a reversal) is taken only from a rate clearly above
             # the floor: the end of a spin-down leaves slow, shaky tracks of either sign.
             # So is the old one once its slowing line has passed zero: the fan has come
             # to rest, and a new lock on it claimed 0.07-0.09 Hz the old way 1.3 s later
-            d = replace(d, direction=Direction.UNKNOWN.value, rotation=None, turning=False,
+            d = replace(d, direction=Direction.UNKNOWN, rotation=None, turning=False,
                         reason=f"turning slowly ({d.rate_hz or 0.0:.3f} Hz < {slow:g} Hz "
                                f"needed for a new direction"
                                f"{'' if cand != self.known else ' or after a spin-down'}"
                                f"): {d.reason}")
             cand = None
         prev, self._prev_kind = self._prev_kind, cand
-        if cand in TURNING and prev != cand:
+        if cand in TURNING_KINDS and prev != cand:
             self._run_from = float(t_s)      # a new run of answers of this direction
-        if cand in TURNING and cand == self.known and self._cand == "stopped" \
+        if cand in TURNING_KINDS and cand == self.known and self._cand == Kind.STOPPED \
                 and prev != cand:
             # one answer of the old direction amid a stop's confirmation counts only once
             # the next decision says so too: new locks on a fan at rest claimed 0.12-0.13
             # Hz for one decision, twice, and each restarted the confirmation and renewed
             # the fan's last turning (a stop 3.4 s after rest in a simulated hour)
-            return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
+            return replace(d, direction=Direction.UNKNOWN, rotation=None,
                            confidence=min(d.confidence, 0.5), turning=False,
                            reason=f"a lone answer {d.direction} amid a stop's "
                                   f"confirmation: {d.reason}"), []
-        if cand is None and d.turning and d.doubtful_room and self.known in ("+", "-") \
+        if cand is None and d.turning and d.doubtful_room and self.known in WAY_KINDS \
                 and _rate(d) >= slow:
             # in a room whose echoes turned either way fit alike, a window in doubt about
             # the direction still shows the fan turning at its rate: it has not passed
             # through zero since (the chain that a reversal must break)
             self._see_known(t_s, _rate(d))
             self._chain = self._known_seen
-        elif cand is None and self.known in ("+", "-") and self._chain is not None \
+        elif cand is None and self.known in WAY_KINDS and self._chain is not None \
                 and _rate(d) >= slow \
                 and abs(_rate(d) - self._chain[1]) <= CHAIN_AGREE * self._chain[1]:
             # a window too weak for a direction that still sees the fan at the speed it
@@ -241,7 +222,7 @@ class Transitions:
             # other way: a false reversal in a room at 7 dB)
             self._chain = (float(t_s), _rate(d))
         self._watch_slowing(t_s, d, cand)
-        if cand in TURNING and (cand == self.known or self.known not in ("+", "-")):
+        if cand in TURNING_KINDS and (cand == self.known or self.known not in WAY_KINDS):
             # only the known direction renews the cap of the wait for a reversal: a new
             # lock on a fan at rest claiming the other way for 0.2 s held a stop to 3.2 s
             if not (self._below_floor(t_s, cand)
@@ -255,11 +236,11 @@ class Transitions:
                 # cut the wait short, and a reversal at 0.08 Hz/s read as a stop and a
                 # start
                 self._last_turning, self._last_turning_hz = float(t_s), _rate(d)
-        if cand in TURNING:
+        if cand in TURNING_KINDS:
             if cand == self.known:
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen  # (bounded from rest like it)
-        elif cand == "stopped" and self.known in TURNING:
+        elif cand == Kind.STOPPED and self.known in TURNING_KINDS:
             self._see_known(t_s, 0.0)
             self._chain = None              # seen at rest: a reversal may follow
         if cand is not None and cand != self._cand:
@@ -279,7 +260,7 @@ class Transitions:
         fired: list[Event] = []
         if cand is None:
             return d, fired
-        need = self._stop_confirm if cand == "stopped" else self._confirm
+        need = self._stop_confirm if cand == Kind.STOPPED else self._confirm
         # pulses for the candidate within twice its confirmation time: an unknown answer
         # between them (a weak window, an alias check's doubt) pauses the count instead
         # of restarting it; an answer of another kind restarts it
@@ -293,21 +274,21 @@ class Transitions:
             # mirror image of the blade pattern, unless the new line has beaten its mirror
             # (in a room where directions are in doubt not even then); its answers count
             # for its confirmation all the same, which the check, once passed, completes
-            return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
+            return replace(d, direction=Direction.UNKNOWN, rotation=None,
                            confidence=min(d.confidence, 0.5), turning=False,
                            reason=f"turning {d.direction} at once after the other way, "
                                   f"sooner than a fan reverses, on a line not shown to "
                                   f"beat its mirror image: {d.reason}"), fired
         if cand != self.known:
             guard = self._reversal_guard(t_s) \
-                if cand == "stopped" and not d.seen_still else None
+                if cand == Kind.STOPPED and not d.seen_still else None
             soonest = self._soonest_reversal(t_s, self._cand_rate) \
-                if cand != "stopped" else None
+                if cand != Kind.STOPPED else None
             if soonest is not None and t_s >= soonest:
                 soonest = None
             if self._cand_n < need or guard is not None or soonest is not None:
-                what = ("a stop" if cand == "stopped" else "turning, direction in doubt"
-                        if cand == "~" else f"turning {d.direction}")
+                what = ("a stop" if cand == Kind.STOPPED else "turning, direction in doubt"
+                        if cand == Kind.TURNING else f"turning {d.direction}")
                 if guard is not None:
                     how = (f"slowing at {self._slowing_hz_s:.3f} Hz/s"
                            if self._line_zero(t_s) is not None else
@@ -322,37 +303,37 @@ class Transitions:
                            f"fan reverses (until {soonest:.1f} s)")
                 else:
                     why = f"confirming {what} ({min(self._cand_n, need)} of {need} pulses)"
-                return replace(d, direction=Direction.UNKNOWN.value, rotation=None,
+                return replace(d, direction=Direction.UNKNOWN, rotation=None,
                                confidence=min(d.confidence, 0.5), turning=False,
                                reason=f"{why}: {d.reason}"), fired
             before = self.known
             self.known = cand
-            self._known_seen = (float(t_s), _rate(d)) if cand != "stopped" else None
-            if before is not None and not (before == "~" and cand in ("+", "-")):
+            self._known_seen = (float(t_s), _rate(d)) if cand != Kind.STOPPED else None
+            if before is not None and not (before == Kind.TURNING and cand in WAY_KINDS):
                 # (a direction found for a fan already known to turn is no event)
-                kind = ("stopped" if cand == "stopped" else
-                        "started" if before == "stopped" else "reversed")
+                kind = (EventKind.STOPPED if cand == Kind.STOPPED else
+                        EventKind.STARTED if before == Kind.STOPPED else EventKind.REVERSED)
                 ev = Event(kind, float(t_s), int(pulse), d.direction, d.rotation,
-                           None if cand == "stopped" else d.rate_hz)
+                           None if cand == Kind.STOPPED else d.rate_hz)
                 fired.append(ev)
                 self.events.append(ev)
         self.known_decision = d
         return d, fired
 
-    def _line_rate(self, t_s: float, kind: str) -> float | None:
+    def _line_rate(self, t_s: float, kind: Kind) -> float | None:
         """The rate (Hz) at ``t_s`` of the line on which answers of ``kind`` were last
         seen slowing (below zero once it has passed zero); None without such a line."""
         if self._seen_kind != kind or self._zero_by is None:
             return None
         return self._slowing_hz_s * (self._zero_by - float(t_s))
 
-    def _past_zero(self, t_s: float, kind: str) -> bool:
+    def _past_zero(self, t_s: float, kind: Kind) -> bool:
         """Whether answers of ``kind`` were last seen slowing on a line that has reached
         zero by ``t_s``."""
         rate = self._line_rate(t_s, kind)
         return rate is not None and rate < 0.0
 
-    def _below_floor(self, t_s: float, kind: str) -> bool:
+    def _below_floor(self, t_s: float, kind: Kind) -> bool:
         """Whether answers of ``kind`` were last seen slowing on a line that is below the
         floor by ``t_s``."""
         rate = self._line_rate(t_s, kind)
@@ -367,7 +348,7 @@ class Transitions:
             rate = min(rate, r0 + st.max_reversal_hz_s * max(float(t_s) - t0, 0.0))
         self._known_seen = (float(t_s), rate)
 
-    def _sudden_reversal(self, t_s: float, rate: float, cand: str) -> bool:
+    def _sudden_reversal(self, t_s: float, rate: float, cand: Kind) -> bool:
         """Whether an answer of ``cand`` at ``rate`` (Hz), the other way from the known
         direction, comes within ``SUDDEN_SHARE`` of the time a fan needs to reverse (down
         through zero and up at ``max_reversal_hz_s``) from when it was last seen turning
@@ -379,7 +360,7 @@ class Transitions:
         up on the mirror of the blade pattern (false reversals at 0.19-0.74 Hz in random
         rooms, the same speed either side)."""
         st = self.settings
-        if self.known not in ("+", "-") or cand not in ("+", "-") or cand == self.known \
+        if self.known not in WAY_KINDS or cand not in WAY_KINDS or cand == self.known \
                 or self._chain is None or not st.max_reversal_hz_s > 0:
             return False
         t, old = self._chain
@@ -396,7 +377,7 @@ class Transitions:
         'reversed' in a simulated day). A zero still ahead is not used: answers after a
         stretch at rest join the line of those before it, and put its zero seconds off."""
         st = self.settings
-        if self.known not in ("+", "-") or self._known_seen is None \
+        if self.known not in WAY_KINDS or self._known_seen is None \
                 or not st.max_reversal_hz_s > 0:
             return None
         t, old = self._known_seen
@@ -405,16 +386,16 @@ class Transitions:
             soonest = max(soonest, self._zero_by + rate / st.max_reversal_hz_s)
         return min(soonest, self._cand_t + st.reversal_hold_s)
 
-    def _watch_slowing(self, t_s: float, d: Decision, kind: str | None) -> None:
+    def _watch_slowing(self, t_s: float, d: Decision, kind: Kind | None) -> None:
         """Remember when a fan seen slowing down steadily would reach zero: the line of
         the recent answers at rates the track follows well (three times the floor and
         up), extrapolated; such answers that no longer fall (the fan held or regained its
         speed) forget it. Slower answers change nothing: there the track lags and
         flattens (it read 0.13 Hz for a second while the fan went from 0.08 Hz to 0.04);
         nor do answers the other way before that way is confirmed."""
-        if kind not in TURNING or d.rate_hz is None or not math.isfinite(d.rate_hz):
+        if kind not in TURNING_KINDS or d.rate_hz is None or not math.isfinite(d.rate_hz):
             return
-        if self.known in ("+", "-") and kind != self.known:
+        if self.known in WAY_KINDS and kind != self.known:
             # the other way, not confirmed yet: a sign that the fan may be reversing, not
             # a reason to forget its slowing (one early answer the other way dropped the
             # wait, and a reversal at 0.11 Hz/s read as a stop and a start)
@@ -466,7 +447,7 @@ class Transitions:
         ``followed_s`` up to the last one. A faster fan would have been seen slowing, so
         its sudden quiet is a stop (an abrupt one) and is not held."""
         st = self.settings
-        if self.known not in TURNING:
+        if self.known not in TURNING_KINDS:
             return None
         zero_by, slowing = self._line_zero(t_s), self._slowing_hz_s
         if zero_by is None:

@@ -22,11 +22,14 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..answer import (
+    Decision as Decision,  # (transitions.py's import, until it takes it from answer)
+)
+from ..answer import Direction, RateState
 from .fingerprint import envelope_features
 
 
@@ -245,46 +248,6 @@ class DecideSettings:
     changing_hz_s: float = 0.02
 
 
-@dataclass
-class Decision:
-    """The answer for one window; ``as_dict`` gives the JSON keys of ``analyze``."""
-
-    direction: str
-    rotation: str | None
-    relative_rate: float | None
-    rate_hz: float | None
-    rpm: float | None
-    confidence: float
-    reason: str
-    warnings: list[str] = field(default_factory=list)
-    rate_state: str | None = None
-    """'settled' or 'changing' while turning, else None."""
-    rate_change_hz_s: float | None = None
-    """How fast the rotation rate changes (Hz per second, + faster), while turning."""
-    seen_still: bool = False
-    """A 'stopped' answer whose matches show the blade standing still in view (not only
-    a quiet meter): no reversal through zero can be under way (transitions.py)."""
-    turning: bool = False
-    """The fan turns by this window's evidence, whichever way: set with a direction, and
-    on an ``unknown`` whose only doubt is the direction (a confident track well above
-    the floor, in doubt because its mirror image or an alias rate fits as well)."""
-    mirror_checked: bool = False
-    """The track's line has fitted the reference clearly better than its mirror image
-    (:meth:`aliasing.AliasWatch.mirror_checked`): its direction is no mirror lock."""
-    doubtful_room: bool = False
-    """Directions have lately been in doubt in this room (its echoes turned either way
-    fit about equally: :attr:`aliasing.AliasWatch.doubtful`)."""
-
-    def as_dict(self) -> dict[str, Any]:
-        def r(v: float | None, n: int) -> float | None:
-            return None if v is None or not math.isfinite(v) else round(float(v), n)
-        return dict(direction=self.direction, rotation=self.rotation,
-                    relative_rate=r(self.relative_rate, 5), rate_hz=r(self.rate_hz, 5),
-                    rpm=r(self.rpm, 3), rate_state=self.rate_state,
-                    rate_change_hz_s=r(self.rate_change_hz_s, 4),
-                    confidence=r(self.confidence, 4), reason=self.reason)
-
-
 #: A short meter under this many times ``motion_threshold`` reads as rest when the matches
 #: show the blade standing still in view (``seen_still``). At 30 dB with 40 ppm of clock
 #: drift the aligner's residual error kept a fan at rest in view at 1.01-1.14 at the
@@ -361,8 +324,8 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     still_thr = s.still_threshold if math.isfinite(s.still_threshold) else s.motion_threshold
     if scene < s.scene_threshold and not (motion >= s.motion_threshold) \
             and not (still >= still_thr):
-        return Decision("unknown", None, None, None, None, 0.0,
-                        "nothing but noise in the range gate", warnings)
+        return Decision(Direction.UNKNOWN, None, None, None, None, 0.0,
+                        "nothing but noise in the range gate", tuple(warnings))
     turning = locked and math.isfinite(rate) and ref_cycles_per_pulse > 0
     conf = 0.0
     rel = rel_std = rate_hz = math.nan
@@ -389,18 +352,18 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     quiet = math.isfinite(m) and m < thr
     if quiet and not moving:
         c = min(max((thr - m) / (thr - 1.0), 0.0), 1.0)
-        return Decision("stopped", None, 0.0, 0.0, 0.0, c,
+        return Decision(Direction.STOPPED, None, 0.0, 0.0, 0.0, c,
                         f"no change between pulses beyond noise (motion {m:.3f} < "
-                        f"{thr:.3g})", warnings, seen_still=seen_still)
+                        f"{thr:.3g})", tuple(warnings), seen_still=seen_still)
     limit = SEEN_STILL_FACTOR * still_thr
     if seen_still and math.isfinite(still) and still < limit and not moving:
         c = min(max((limit - still) / (limit - 1.0), 0.0), 1.0)
-        return Decision("stopped", None, 0.0, 0.0, 0.0, c,
+        return Decision(Direction.STOPPED, None, 0.0, 0.0, 0.0, c,
                         f"the blade stands still in view, little change between pulses "
-                        f"(motion {still:.3f} < {limit:.3g})", warnings, seen_still=True)
+                        f"(motion {still:.3f} < {limit:.3g})", tuple(warnings), seen_still=True)
     if not turning:
-        return Decision("unknown", None, None, None, None, 0.0,
-                        "no consistent match against the reference", warnings)
+        return Decision(Direction.UNKNOWN, None, None, None, None, 0.0,
+                        "no consistent match against the reference", tuple(warnings))
     if abs(rel) > s.slew_limit:
         warnings.append(f"|relative rate| {abs(rel):.2f} exceeds the slew limit "
                         f"{s.slew_limit:g}: re-record the reference nearer this speed")
@@ -410,28 +373,28 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     if s.alias_margin > 0 and alias_gap < s.alias_margin:
         # several alias rates fit about equally: the sign or the rate could be either
         conf = min(conf, s.min_confidence) * max(alias_gap, 0.0) / s.alias_margin
-        return Decision("unknown", None, rel, rate_hz, rate_hz * 60.0, conf, alias_note,
-                        warnings, turning=moving)
+        return Decision(Direction.UNKNOWN, None, rel, rate_hz, rate_hz * 60.0, conf, alias_note,
+                        tuple(warnings), turning=moving)
     if alias_note:
         warnings.append(alias_note)
     if conf < s.min_confidence:
-        return Decision("unknown", None, rel, rate_hz, rate_hz * 60.0, conf,
+        return Decision(Direction.UNKNOWN, None, rel, rate_hz, rate_hz * 60.0, conf,
                         f"weak evidence (confidence {conf:.2f} < {s.min_confidence:g}; "
-                        f"relative rate {rel:+.3f} +- {rel_std:.3f})", warnings)
+                        f"relative rate {rel:+.3f} +- {rel_std:.3f})", tuple(warnings))
     if rate_hz < s.rate_floor_hz:
-        return Decision("unknown", None, rel, rate_hz, rate_hz * 60.0, conf,
+        return Decision(Direction.UNKNOWN, None, rel, rate_hz, rate_hz * 60.0, conf,
                         f"turning slower than the floor ({rate_hz:.3f} Hz < "
-                        f"{s.rate_floor_hz:g} Hz): no direction is claimed", warnings)
+                        f"{s.rate_floor_hz:g} Hz): no direction is claimed", tuple(warnings))
     # the rate's change in Hz/s (sign: + when the fan speeds up)
     hz_per = ref_rate_hz / ref_cycles_per_pulse           # Hz per (cycle per pulse)
     change = accel * hz_per * (1.0 if rate >= 0 else -1.0)
-    rate_state = "changing" if (abs(change) >= s.changing_hz_s and
-                                changing_odds > 0.5) else "settled"
+    rate_state = RateState.CHANGING if (abs(change) >= s.changing_hz_s and
+                                        changing_odds > 0.5) else RateState.SETTLED
     same = rel > 0
-    direction = "same" if same else "reversed"
+    direction = Direction.SAME if same else Direction.REVERSED
     rotation = None
     if ref_direction in ("cw", "ccw"):
         rotation = ref_direction if same else ("ccw" if ref_direction == "cw" else "cw")
     return Decision(direction, rotation, rel, rate_hz, rate_hz * 60.0, conf,
-                    f"relative rate {rel:+.4f} +- {rel_std:.4f}", warnings,
+                    f"relative rate {rel:+.4f} +- {rel_std:.4f}", tuple(warnings),
                     rate_state=rate_state, rate_change_hz_s=change, turning=True)

@@ -24,6 +24,7 @@ import os
 import shutil
 import zipfile
 import zlib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -56,12 +57,12 @@ MEMBERS = ("table.npy", "mean_pulse.npy", "meta.npy")
 REMAKE = "make it again with 'bladesonar reference'"
 
 
-def _canonical(meta: dict[str, Any]) -> bytes:
+def _canonical(meta: Mapping[str, Any]) -> bytes:
     return json.dumps({k: v for k, v in meta.items() if k != "sha256"},
                       sort_keys=True).encode("utf-8")
 
 
-def checksum(table: np.ndarray, mean_pulse: np.ndarray, meta: dict[str, Any]) -> str:
+def checksum(table: np.ndarray, mean_pulse: np.ndarray, meta: Mapping[str, Any]) -> str:
     """sha256 of the arrays (float64 little-endian, C order, shapes included) and the
     metadata without its own checksum."""
     h = hashlib.sha256()

@@ -8,11 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..answer import Direction
 from ..imaging import TrackSeries
 from . import pyplot, save
 
-COLOURS = {"same": "#2ca02c", "reversed": "#d62728", "stopped": "#7f7f7f",
-           "unknown": "#ffffff"}
+COLOURS = {Direction.SAME: "#2ca02c", Direction.REVERSED: "#d62728",
+           Direction.STOPPED: "#7f7f7f", Direction.UNKNOWN: "#ffffff"}
 
 
 def _spans(t: np.ndarray, labels: np.ndarray):
@@ -45,15 +46,15 @@ def draw(s: TrackSeries, out: str | Path, *, title: str = "", min_confidence: fl
     a1.set_ylabel("reference phase\n(blade periods, unwrapped)")
     a1.legend(loc="best", fontsize=7, framealpha=0.7, markerscale=1.5)
     for a, b, lab in _spans(s.t_s, s.direction):
-        if lab != "unknown":
+        if lab != Direction.UNKNOWN:
             a2.axvspan(a, b, color=COLOURS.get(lab, "w"), alpha=0.18, lw=0)
     a2.plot(s.t_s, s.relative_rate, color="k", lw=1.0)
     a2.axhline(0.0, color="0.5", lw=0.6)
     a2.set_ylabel("relative rate\n(this / reference)")
     from matplotlib.patches import Patch
 
-    a2.legend(handles=[Patch(color=COLOURS[k], alpha=0.35 if k != "unknown" else 1.0,
-                             label=k, ec="0.7") for k in COLOURS],
+    a2.legend(handles=[Patch(color=COLOURS[k], alpha=0.35 if k != Direction.UNKNOWN else 1.0,
+                             label=k.value, ec="0.7") for k in COLOURS],
               loc="best", fontsize=7, ncol=4, framealpha=0.7)
     a3.plot(s.t_s, s.confidence, color="C1", lw=1.0)
     a3.axhline(min_confidence, color="0.4", lw=0.7, ls=":")

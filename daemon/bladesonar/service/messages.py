@@ -35,22 +35,32 @@ import numbers
 import re
 import time
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, TypedDict
+
+from ..answer import (
+    MOTION_EVENTS,
+    SIGNIFICANT_DIGITS,
+    WAYS,
+    Direction,
+    Estimate,
+    EventKind,
+    Kind,
+    significant,
+)
 
 if TYPE_CHECKING:
     from ..config import Config
-    from ..live import Estimate
 
 #: Availability payloads (Home Assistant's defaults, so no payload_* keys are needed).
 ONLINE = "online"
 OFFLINE = "offline"
 
-#: Motion events (transitions.py) and the reference's events (the runner).
-MOTION_EVENTS = ("started", "stopped", "reversed")
-REFERENCE_EVENTS = ("learned", "learn_failed", "forgotten", "direction_set", "stale",
-                    "missing", "invalid")
-#: Event kinds the daemon publishes (``reference_<x>`` for each of REFERENCE_EVENTS).
-EVENT_KINDS = (*MOTION_EVENTS, *(f"reference_{k}" for k in REFERENCE_EVENTS))
+#: The reference's events (service/reference_keeper.py) as Home Assistant's event types
+#: name them: each ``reference_<x>`` of :class:`answer.EventKind` as ``<x>``.
+REFERENCE_EVENTS = tuple(k.removeprefix("reference_") for k in EventKind if not k.motion)
+#: Event kinds the daemon publishes: the fan's (:data:`answer.MOTION_EVENTS`), then the
+#: reference's.
+EVENT_KINDS = tuple(EventKind)
 
 #: The daemon's status (state ``status``, the status topic, Home Assistant's Status):
 #: ``starting`` until the first estimate or problem; ``learning`` while it records and
@@ -86,8 +96,34 @@ RUNNING_HOLD_S = 60.0
 #: a Forget) goes on and will name the state again. Any other status makes it unknown.
 HOLD_STATUSES = ("starting", "ok", "learning", "airflow_contradiction")
 
-#: Significant digits kept in float payload values.
-FLOAT_DIGITS = 6
+
+class StatsPayload(TypedDict):
+    """The runner's stats (``Service.stats``): the health counters a user can alert on,
+    then the detail; :func:`stats_payload` adds ``time``."""
+
+    started_at: str
+    uptime_s: float
+    cpu_share: float | None
+    pulses_processed: int
+    dropped_pulses: int
+    xruns: int
+    reconnects: int
+    dropped_events: int
+    clock_ppm: float | None
+    device: dict[str, Any] | None
+    """Clipped coupling, gain wander, bursts, the room's tail (docs/audio.md)."""
+    audio_restarts: int
+    latency_ms: dict[str, float] | None
+    """From a completed capture period to its state sent: median, max, n."""
+    reloads: int
+    reload_errors: int
+    signal_errors: int
+    references_learned: int
+    learn_failures: int
+    commands: int
+    commands_refused: int
+    fit: float | None
+    audio: dict[str, Any]
 
 
 class Message(NamedTuple):
@@ -193,7 +229,7 @@ def clean_dict(fields: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def clean(value: Any, digits: int = FLOAT_DIGITS) -> Any:
+def clean(value: Any, digits: int = SIGNIFICANT_DIGITS) -> Any:
     """A JSON-safe copy: NaN/inf -> None, floats rounded to ``digits`` significant digits,
     numpy scalars and arrays -> Python numbers and lists, tuples -> lists, other objects
     -> str."""
@@ -202,10 +238,7 @@ def clean(value: Any, digits: int = FLOAT_DIGITS) -> Any:
     if isinstance(value, numbers.Integral):
         return int(value)
     if isinstance(value, numbers.Real):
-        x = float(value)
-        if not math.isfinite(x):
-            return None
-        return float(f"{x:.{digits}g}")
+        return significant(float(value), digits)
     if isinstance(value, Mapping):
         return {str(k): clean(v, digits) for k, v in value.items()}
     if isinstance(value, (list, tuple, set, frozenset)):
@@ -245,8 +278,8 @@ def state_payload(estimate: Estimate | Mapping[str, Any] | None, t: float | None
         else dict(estimate.fields())
     out: dict[str, Any] = {k: fields.get(k) for k in STATE_KEYS}
     if out["direction"] is None:
-        out["direction"] = "unknown"
-    if out["direction"] == "unknown":
+        out["direction"] = Direction.UNKNOWN.value
+    if out["direction"] == Direction.UNKNOWN:
         out["confidence"] = None
     if out["airflow"] not in ("down", "up"):
         out["airflow"] = "unknown"
@@ -277,11 +310,12 @@ class RunningHold:
         self.value: bool | None = None
         self._unknown_since: float | None = None
 
-    def update(self, direction: str | None, status: str, now: float) -> bool | None:
-        """The held value after an answer of ``direction`` at monotonic time ``now``
-        (``turning``: turning, its direction in doubt, see :func:`motion_of`)."""
-        if direction in ("same", "reversed", "stopped", "turning"):
-            self.value = direction != "stopped"
+    def update(self, kind: str | None, status: str, now: float) -> bool | None:
+        """The held value after an answer of ``kind`` (a :class:`answer.Kind`: ``turning``
+        for a fan turning whose direction is in doubt; None or any other word: nothing
+        known) at monotonic time ``now``."""
+        if kind in tuple(Kind):
+            self.value = kind != Kind.STOPPED
             self._unknown_since = None
         elif status not in HOLD_STATUSES:
             self.value, self._unknown_since = None, None
@@ -546,7 +580,7 @@ _ENTITIES: tuple[tuple[str, str, str, dict[str, Any]], ...] = (
                            "{% elif value_json.running %}ON{% else %}OFF{% endif %}")}),
     ("sensor", "direction", "state", {
         "name": "Direction to reference", "device_class": "enum",
-        "options": ["same", "reversed", "stopped"],
+        "options": [d.value for d in (*WAYS, Direction.STOPPED)],
         "value_template": _DIRECTION_TEMPLATE, "icon": "mdi:compare-horizontal"}),
     ("sensor", "rate", "state", {
         "name": "Rotation rate", "device_class": "frequency", "unit_of_measurement": "Hz",

@@ -32,6 +32,7 @@ import time
 from collections.abc import Mapping
 from typing import IO, TYPE_CHECKING, Any, Protocol
 
+from ..answer import Direction, Kind
 from ..errors import ConfigError
 from .messages import (
     Command,
@@ -57,8 +58,8 @@ from .messages import (
 )
 
 if TYPE_CHECKING:
+    from ..answer import Estimate
     from ..config import Config
-    from ..live import Estimate
 
 log = logging.getLogger(__name__)
 #: At most one log line per this many seconds for Home Assistant's ``online`` messages
@@ -92,7 +93,7 @@ class Publisher(Protocol):
 
     def publish_event(self, kind: str, **details: Any) -> None: ...
 
-    def publish_stats(self, stats: dict[str, Any]) -> None: ...
+    def publish_stats(self, stats: Mapping[str, Any]) -> None: ...
 
     def take_commands(self) -> list[Command]:
         """Commands received since the last call, validated and rate-limited."""
@@ -411,7 +412,7 @@ class MqttPublisher:
     def publish_state(self, estimate: Estimate | Mapping[str, Any] | None, *,
                       status: str = "ok", detail: str | None = None) -> None:
         """Retained state; while disconnected only the latest is kept."""
-        running = self._running.update(_direction_of(estimate), status, time.monotonic())
+        running = self._running.update(_kind_of(estimate), status, time.monotonic())
         msg = state_message(self.topics, state_payload(estimate, status=status,
                                                        detail=detail, running=running))
         with self._lock:
@@ -441,7 +442,7 @@ class MqttPublisher:
             else:
                 self._queue([msg])
 
-    def publish_stats(self, stats: dict[str, Any]) -> None:
+    def publish_stats(self, stats: Mapping[str, Any]) -> None:
         """Retained stats with ``time`` (and this publisher's counters if missing)."""
         with self._lock:
             extra = {"reconnects": self._reconnects, "dropped_events": self._dropped}
@@ -756,19 +757,18 @@ def retire(cfg: Config, timeout: float = 10.0) -> list[str]:
         c.loop_stop()
 
 
-def _direction_of(estimate: Estimate | Mapping[str, Any] | None) -> str | None:
-    """The answer's direction for RunningHold; ``turning`` for a fan known to turn whose
-    direction is in doubt (``rotating`` true with the direction unknown)."""
+def _kind_of(estimate: Estimate | Mapping[str, Any] | None) -> Kind | None:
+    """What the answer knows of the motion, for RunningHold: its direction's kind, or
+    ``turning`` for a fan known to turn whose direction is in doubt (``rotating`` true
+    with the direction unknown)."""
     if estimate is None:
         return None
-    if isinstance(estimate, Mapping):
-        d = estimate.get("direction")
-        rotating = estimate.get("rotating")
-    else:
-        d, rotating = estimate.direction.value, estimate.rotating
-    if d == "unknown" and rotating:
-        return "turning"
-    return None if d is None else str(d)
+    if not isinstance(estimate, Mapping):
+        return estimate.kind
+    d = estimate.get("direction")
+    if d == Direction.UNKNOWN and estimate.get("rotating"):
+        return Kind.TURNING
+    return Kind.of(d) if isinstance(d, str) else None
 
 
 # -- stdout ------------------------------------------------------------------------------
@@ -812,7 +812,7 @@ class StdoutPublisher:
 
     def publish_state(self, estimate: Estimate | Mapping[str, Any] | None, *,
                       status: str = "ok", detail: str | None = None) -> None:
-        running = self._running.update(_direction_of(estimate), status, time.monotonic())
+        running = self._running.update(_kind_of(estimate), status, time.monotonic())
         self._emit(state_message(self.topics, state_payload(estimate, status=status,
                                                             detail=detail, running=running)))
 
@@ -825,7 +825,7 @@ class StdoutPublisher:
     def publish_event(self, kind: str, **details: Any) -> None:
         self._emit(event_message(self.topics, event_payload(kind, details)))
 
-    def publish_stats(self, stats: dict[str, Any]) -> None:
+    def publish_stats(self, stats: Mapping[str, Any]) -> None:
         extra = {"reconnects": 0, "dropped_events": self._dropped}
         self._emit(stats_message(self.topics, stats_payload(stats, extra=extra)))
 

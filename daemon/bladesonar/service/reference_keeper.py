@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol, TypedDict
 
+from ..answer import EventKind
 from ..config import Config
 from ..errors import BladesonarError, ReferenceMissingError
 from ..live import LiveAnalyzer
@@ -171,7 +172,7 @@ class ReferenceKeeper:
                     self.notifier.status(f"waiting for a reference: {problem}" if missing
                                          else f"reference invalid: {problem}")
                 status = "reference_missing" if missing else "reference_invalid"
-                host.publisher.publish_event(status, detail=problem)
+                host.publisher.publish_event(EventKind(status), detail=problem)
                 host._publish_status()
                 host._publish_unknown()
             return False
@@ -240,7 +241,7 @@ class ReferenceKeeper:
             _, detail = self.host._status()
             log.warning("%s", detail)
             assert self.host.publisher is not None
-            self.host.publisher.publish_event("reference_stale", detail=detail,
+            self.host.publisher.publish_event(EventKind.REFERENCE_STALE, detail=detail,
                                               fit=round(self.fit.fit or 0.0, 3))
         elif was and not self.fit.stale:
             self._stale_reported = False
@@ -291,7 +292,7 @@ class ReferenceKeeper:
                      info.get("id"), info.get("rate_hz", float("nan")),
                      info.get("quality", float("nan")), info.get("direction"))
             publisher.publish_event(
-                "reference_learned", reference=info.get("id"), rate_hz=info.get("rate_hz"),
+                EventKind.REFERENCE_LEARNED, reference=info.get("id"), rate_hz=info.get("rate_hz"),
                 quality=info.get("quality"), direction=info.get("direction"), source=why,
                 direction_source=info.get("direction_source"),
                 airflow=info.get("airflow"), airflow_confidence=info.get("airflow_confidence"),
@@ -305,7 +306,7 @@ class ReferenceKeeper:
         self.learn_failure = res.error
         log.warning("learning a reference failed (%s): %s; next automatic try in %.0f s",
                     why, res.error, self.learn_wait)
-        publisher.publish_event("reference_learn_failed", detail=res.error, source=why)
+        publisher.publish_event(EventKind.REFERENCE_LEARN_FAILED, detail=res.error, source=why)
         self.learn_next_try = self.clock() + self.learn_wait
         self.learn_wait = min(2.0 * self.learn_wait, cfg.reference.retry_max_s)
         return False
@@ -325,11 +326,11 @@ class ReferenceKeeper:
             self._sig = self.signature()
             log.info("reference direction set to %s (reference %s)", direction,
                      self.reference.meta["id"])
-            publisher.publish_event("reference_direction_set", direction=direction,
+            publisher.publish_event(EventKind.REFERENCE_DIRECTION_SET, direction=direction,
                                     reference=self.reference.meta["id"])
         elif not res.ok:
             log.error("setting the reference direction failed: %s", res.error)
-            publisher.publish_event("reference_learn_failed", detail=res.error)
+            publisher.publish_event(EventKind.REFERENCE_LEARN_FAILED, detail=res.error)
 
     def forgotten(self, kept: str | None, turning_rotation: str | None) -> None:
         """The reference is gone: one step to learning a new one (or to waiting for the
@@ -339,7 +340,7 @@ class ReferenceKeeper:
         assert self.host.publisher is not None
         old = self.direction
         log.info("reference forgotten%s", f" (kept as {kept})" if kept else "")
-        self.host.publisher.publish_event("reference_forgotten", detail=kept)
+        self.host.publisher.publish_event(EventKind.REFERENCE_FORGOTTEN, detail=kept)
         if self.pending_direction is None and old in ("cw", "ccw") \
                 and turning_rotation in ("cw", "ccw"):
             self.pending_direction = turning_rotation

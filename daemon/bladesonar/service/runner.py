@@ -20,15 +20,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .. import config as config_mod
+from ..answer import Estimate
 from ..dsp.stats import median
 from ..errors import BladesonarError
 from ..io.config_file import load_config
-from ..live import Estimate, LiveAnalyzer
+from ..live import LiveAnalyzer
 from . import learner, memory, settings_store
 from .airflow_watch import AirflowWatch
 from .audio import AudioIO, PulseBlock
 from .every import Every
-from .messages import Command, utc_iso
+from .messages import Command, StatsPayload, utc_iso
 from .notify import Notifier, NullNotifier
 from .publish import Publisher
 from .reference_keeper import REFERENCE_POLL_S, ReferenceKeeper
@@ -786,7 +787,7 @@ class Service:
             # the reload is done (systemctl reload returns); re-alignment shows in STATUS
             self.notifier.ready("configuration reloaded; re-aligning")
 
-    def stats(self, uptime_s: float) -> dict[str, Any]:
+    def stats(self, uptime_s: float) -> StatsPayload:
         """The stats message: health counters a user can alert on, plus the raw detail."""
         audio = dict(self._audio_closed)
         if self.audio is not None:

@@ -31,6 +31,7 @@ from typing import overload
 
 import numpy as np
 
+from ..answer import MOTION_EVENTS, WAYS, Direction, EventKind
 from .schedule import Schedule
 
 #: |rate| at which a fan counts as turning for the truth events (Hz).
@@ -92,7 +93,7 @@ def truth_events(schedule: Schedule, seconds: float, *, moving_hz: float = MOVIN
             if rest_from is None:
                 rest_from = float(ti)
             if known not in (None, 0) and ti - rest_from >= min_rest_s:
-                out.append(TruthEvent("stopped", rest_from, 0, optional=not reached))
+                out.append(TruthEvent(EventKind.STOPPED, rest_from, 0, optional=not reached))
                 known = 0
             elif known is None and ti - rest_from >= min_rest_s:
                 known = 0
@@ -108,7 +109,8 @@ def truth_events(schedule: Schedule, seconds: float, *, moving_hz: float = MOVIN
         if abs(ri) >= low:
             s = 1 if ri > 0 else -1
             if known is not None and known != s:
-                pending = TruthEvent("started" if known == 0 else "reversed", float(ti), s,
+                pending = TruthEvent(EventKind.STARTED if known == 0 else EventKind.REVERSED,
+                                     float(ti), s,
                                      since_s=moved, optional=True)
                 reached = False
             known = s
@@ -163,13 +165,12 @@ class Score:
             "false": len(self.false), "missed": len(self.missed),
             "false_detail": [(k, round(t, 2)) for k, t in self.false],
             "missed_detail": [(e.kind, round(e.t_s, 2)) for e in self.missed],
-            "latency_s": {k: stats(self.latencies(k)) for k in ("started", "stopped",
-                                                               "reversed")},
+            "latency_s": {k.value: stats(self.latencies(k)) for k in MOTION_EVENTS},
             # the three slowest of each kind, (truth time, latency): where to trace
-            "slowest": {k: [(round(ev.t_s, 2), round(lat, 2)) for ev, lat in
+            "slowest": {k.value: [(round(ev.t_s, 2), round(lat, 2)) for ev, lat in
                             sorted(((e, x) for e, x in self.hits if e.kind == k),
                                    key=lambda h: -h[1])[:3]]
-                        for k in ("started", "stopped", "reversed")},
+                        for k in MOTION_EVENTS},
             "state_share": {"right": round(self.right / n, 4),
                             "unknown": round(self.unknown / n, 4),
                             "wrong": round(self.wrong / n, 4)},
@@ -248,7 +249,9 @@ def score_state(sc: Score, t_s: float, rate_hz: float, direction: str,
     the ramp errors). Rate errors count only states with the right direction (unknown
     and wrong states are counted as such).
     """
-    claim: int | None = {"same": ref_sign, "reversed": -ref_sign, "stopped": 0}.get(direction)
+    claims: dict[str, int] = {Direction.SAME: ref_sign, Direction.REVERSED: -ref_sign,
+                              Direction.STOPPED: 0}
+    claim = claims.get(direction)
     if claim is None:
         sc.unknown += 1
         return
@@ -280,14 +283,14 @@ def score_gaps(sc: Score, times: Sequence[float], directions: Sequence[str],
     n = len(directions)
     i = 0
     while i < n:
-        if directions[i] != "unknown" or i == 0:
+        if directions[i] != Direction.UNKNOWN or i == 0:
             i += 1
             continue
         j = i
-        while j < n and directions[j] == "unknown":
+        while j < n and directions[j] == Direction.UNKNOWN:
             j += 1
         if j < n and directions[i - 1] == directions[j] \
-                and directions[j] in ("same", "reversed") \
+                and directions[j] in WAYS \
                 and min(abs(float(r)) for r in true_rates[i - 1:j + 1]) >= moving_hz:
             sc.gaps.append((float(times[i]), float(times[j]) - float(times[i])))
         i = j
