@@ -249,7 +249,7 @@ class Transitions:
             self._cand_rate, self._cand_t = _rate(d), float(t_s)
             self._cand_sudden = self._sudden_reversal(t_s, self._cand_rate, cand)
         elif cand is not None and prev != cand and self._cand_sudden \
-                and self.known in ("+", "-") and self._past_zero(t_s, self.known):
+                and self.known in WAY_KINDS and self._past_zero(t_s, self.known):
             # the run resumes after a break, and the old way was last seen slowing on a
             # line that has reached zero since: judged afresh, or a lock on the mirror
             # image before a real reversal's zero would hold the real one to the mirror
