@@ -974,7 +974,7 @@ def test_a_run_that_resumes_after_a_break_is_judged_afresh():
     0.154 Hz, not slowing to zero, the same answers are still the mirror's."""
     down = [_d("same", 0.45 - 0.15 * i / 34) for i in range(68)]
     lock = [_d("reversed", 0.16, checked=False)] * 3
-    gap = [Decision("unknown", None, None, None, None, 0.0, "no match")] * 51
+    gap = [Decision(Direction.UNKNOWN, None, None, None, None, 0.0, "no match")] * 51
     up = [_d("reversed", 0.1 + 0.15 * i / 34, checked=False) for i in range(40)]
     fired, published, _ = _walk(down + lock + gap + up)
     assert set(published[68:71]) == {"unknown"}
