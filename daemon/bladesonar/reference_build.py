@@ -22,7 +22,7 @@ from .dsp import aliasing
 from .dsp import device as dev
 from .dsp import fingerprint as fp
 from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
-from .dsp.period import drift_harmonic, estimate_period, sub_sample_cycle
+from .dsp.period import PeriodEstimate, drift_harmonic, estimate_period, sub_sample_cycle
 from .dsp.pulses import (
     BURST,
     OK,
@@ -35,7 +35,7 @@ from .dsp.pulses import (
 )
 from .dsp.rangedoppler import band_limited, range_doppler, without_shift_and_gain
 from .dsp.stats import median
-from .errors import InputError, ReferenceFileError
+from .errors import EstimationError, InputError, ReferenceFileError
 
 #: Share of the band (up to Nyquist) in which a reference's target range is looked for
 #: (the moving energy of the range-doppler map; dsp.pulses.EDGE_BAND's reason).
@@ -227,6 +227,25 @@ def _fold_warning(cfg: Config, gate: Gate, target: float | None) -> list[str]:
             "device nearer the fan"]
 
 
+def _low_band_period(pulses: np.ndarray, valid: np.ndarray, index: np.ndarray,
+                     a: Any) -> PeriodEstimate | None:
+    """The blade period of the gated pulses below TARGET_BAND of Nyquist (None: no line
+    there): the band where the drift's interpolation error is not."""
+    low = band_limited(pulses[valid], TARGET_BAND)
+    mean = low.mean(axis=0)
+    feats = fp.envelope_features(low, mean, kind=a.features, smooth=a.envelope_smooth)
+    y = np.zeros_like(pulses)
+    y[valid] = low - mean
+    f_all = np.zeros((len(pulses), feats.shape[1]))
+    f_all[valid] = feats - feats.mean(axis=0)
+    try:
+        return estimate_period(y, index, features=f_all, min_periods=a.min_periods,
+                               max_cycles_per_pulse=a.max_phase_per_pulse,
+                               line_snr_min=a.line_snr_min)
+    except EstimationError:
+        return None
+
+
 def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> Reference:
     """Make a reference from a recording of the fan turning at a steady rate.
 
@@ -283,19 +302,37 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     span = int(k[-1] - k[0]) + 1 if len(k) else 0
     h = drift_harmonic(r, aligner.period, span)
     if h is not None:
-        # a warning, not a refusal: a fan that does turn there is not told apart yet (a
-        # held-out room's fan at 0.639 Hz lay on the second harmonic by chance, 29 ppm)
+        # the rate lies on the drift's sub-sample cycle: its pattern (the alignment's
+        # interpolation error on strong static echoes) lives at the top of the band, a
+        # fan's echoes across it. The band below TARGET_BAND decides: the same line there
+        # is the fan's (a fan may turn there by chance: a held-out room's at 0.639 Hz,
+        # 29 ppm); another line is the fan's, hidden above by the drift's (3-D tuning
+        # scene 8: 3.54 Hz learned for a fan at 0.264 Hz, which the low band gives);
+        # none leaves the reference with a warning
+        low = _low_band_period(pulses, v, full.index, a)
         ppm = (aligner.period / pri - 1.0) * 1e6
+        cyc = sub_sample_cycle(aligner.period)
         hz = r * prf / cfg.scene.blades
-        warnings.append(
-            f"the pattern found turns {r:.5f} blade periods per pulse ({hz:.3f} Hz), "
-            f"{'on' if h == 1 else f'at {h} times'} the cycle of the pulses' sub-sample "
-            f"position under this device's clock drift ({sub_sample_cycle(aligner.period):.5f} "
-            f"per pulse, {ppm:+.0f} ppm): if the fan does not turn at {hz:.3f} Hz, the "
-            f"pattern is the alignment's interpolation error on strong static echoes and "
-            f"the fan's echoes are too weak from here: place the device where it sees the "
-            f"blades better (nearer the fan, 0.5-2 m off its axis, nothing between); if it "
-            f"does, record the reference at another speed to make sure")
+        if low is not None and abs(low.cycles_per_pulse - r) > 1.0 / span:
+            warnings.append(
+                f"the strongest pattern ({hz:.3f} Hz) turned {'on' if h == 1 else f'at {h} times'} "
+                f"the cycle of the pulses' sub-sample position under this device's clock "
+                f"drift ({cyc:.5f} per pulse, {ppm:+.0f} ppm): the alignment's error on "
+                f"strong static echoes, not the fan; the rate is taken from the band below "
+                f"{TARGET_BAND:g} of Nyquist, where the fan's echoes are weak but the "
+                f"drift's are not ({low.cycles_per_pulse * prf / cfg.scene.blades:.3f} Hz). "
+                f"A place where the device sees the blades better makes them stronger")
+            est, r = low, low.cycles_per_pulse
+        elif low is None:
+            warnings.append(
+                f"the pattern found turns {r:.5f} blade periods per pulse ({hz:.3f} Hz), "
+                f"{'on' if h == 1 else f'at {h} times'} the cycle of the pulses' sub-sample "
+                f"position under this device's clock drift ({cyc:.5f} per pulse, "
+                f"{ppm:+.0f} ppm), and the band below {TARGET_BAND:g} of Nyquist shows no "
+                f"pattern: if the fan does not turn at {hz:.3f} Hz, the pattern is the "
+                f"alignment's interpolation error on strong static echoes and the fan's "
+                f"echoes are too weak from here: place the device where it sees the blades "
+                f"better (nearer the fan, 0.5-2 m off its axis, nothing between)")
     folded = aliasing.folded_angles(r, span)
     if folded is not None:
         p, q = folded.numerator, folded.denominator
