@@ -424,4 +424,5 @@ def combine(plain: Airflow, mirrored: Airflow) -> Airflow:
         return Airflow(mirrored.airflow, mirrored.confidence, mirrored.t, mirrored.shift,
                        mirrored.pulses, mirrored.reason + " (mirror excess: the plain "
                        "peak stayed at a fixed range)", mirrored.lags)
-    return plain
+    return Airflow(plain.airflow, plain.confidence, plain.t, plain.shift, plain.pulses,
+                   f"{plain.reason}; mirror excess: {mirrored.reason}", plain.lags)
