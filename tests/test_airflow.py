@@ -207,10 +207,11 @@ def _at_rest(seed: int):
     of ``seed`` with the fan still, and the noise its turning fan's SNR sets."""
     d = random_scene.draw_3d(seed)
     cfg = config.from_mapping({"scene": {"blades": d.blades}})
-    kw = dict(seed=seed, drift_ppm=d.drift_ppm, nuisances=d.nuisances, include_paths=False)
-    turning = Simulator(d.scene, cfg, d.schedule, snr_db=d.snr_db, **kw)
+    turning = Simulator(d.scene, cfg, d.schedule, snr_db=d.snr_db, seed=seed,
+                        drift_ppm=d.drift_ppm, nuisances=d.nuisances, include_paths=False)
     turning.prepare(d.seconds)
-    still = Simulator(d.scene, cfg, f"stop:0:{d.seconds:g}", snr_db=None, **kw)
+    still = Simulator(d.scene, cfg, f"stop:0:{d.seconds:g}", snr_db=None, seed=seed,
+                      drift_ppm=d.drift_ppm, nuisances=d.nuisances, include_paths=False)
     x = np.concatenate([c for c, _ in still.chunks(d.seconds)])
     x = x + turning.sigma * np.random.default_rng([seed, 9]).standard_normal(len(x))
     return recording_airflow(np.clip(np.round(x * 32768.0), -32768, 32767) / 32768.0, cfg)

@@ -278,7 +278,8 @@ def mirror_excess(c: np.ndarray) -> np.ndarray:
     its correlation c(s) = (sum a_i a_i+lag) R(s) is even in s: it leaves nothing here,
     however strong, where it peaks the plain correlation at zero shift."""
     c = np.asarray(c, dtype=np.float64)
-    return c - c[::-1]
+    out: np.ndarray = c - c[::-1]
+    return out
 
 
 def lag_peaks(per_lag: list[np.ndarray], keep: np.ndarray | None = None,
