@@ -218,15 +218,26 @@ def _at_rest(seed: int):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [50, 68, 128])
+@pytest.mark.parametrize("seed", [50, 68, 76, 128])
 def test_far_from_the_axis_the_guards_still_call(seed):
     # tuning scenes the guards must not silence: 50 (2.25 m off the axis, 1.06 Hz: the
     # plain peak stays at zero shift, the mirror excess calls), 68 (4.7 dB, 0.23 Hz: the
-    # plain reading's t under CALL_T, the mirror excess's far over it), 128 (2.18 m,
-    # 1.53 Hz: the plain reading calls, the mirror excess has no second lag)
+    # plain reading's t under CALL_T, the mirror excess's far over it), 76 (2.55 m: the
+    # plain lag-1 peak 0.4 samples out, under NEAR_ZERO, and the mirror excess agrees),
+    # 128 (2.18 m, 1.53 Hz: the plain reading calls, the mirror excess has no second lag)
     d, a = _run(seed)
     assert a.airflow == d.airflow, (d.describe(), a)
     assert abs(a.t) >= af.CALL_T
+
+
+@pytest.mark.slow
+def test_a_plain_peak_at_zero_shift_over_a_lopsided_mirror_excess_is_unknown():
+    # tuning seed 340: 2.58 m off the axis, 0.69 Hz, a down-draft; the plain peaks sit
+    # 1.4 samples out at lag 1 and called up with t 31, while the mirror excess's lag-1
+    # and lag-2 peaks lie on opposite sides (no consistent motion to be read)
+    d, a = _run(340)
+    assert d.airflow == "down" and a.airflow == "unknown", a
+    assert "zero shift" in a.reason and af.SIDES in a.reason
 
 
 @pytest.mark.slow
