@@ -437,7 +437,7 @@ def combine(plain: Airflow, mirrored: Airflow, lag1_shift: float = math.inf) -> 
         return plain
     if mirrored.airflow != "unknown":
         return Airflow(mirrored.airflow, mirrored.confidence, mirrored.t, mirrored.shift,
-                       mirrored.pulses, mirrored.reason + " (mirror excess: the plain "
-                       "peak stayed at a fixed range)", mirrored.lags)
+                       mirrored.pulses, mirrored.reason + " (read on the mirror excess: "
+                       "the plain peak made no call)", mirrored.lags)
     return Airflow(plain.airflow, plain.confidence, plain.t, plain.shift, plain.pulses,
                    f"{plain.reason}; mirror excess: {mirrored.reason}", plain.lags)
