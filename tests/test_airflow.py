@@ -14,7 +14,7 @@ from bladesonar import cli, config, waveform
 from bladesonar.airflow_recording import recording_airflow
 from bladesonar.dsp import airflow as af
 from bladesonar.sim import random_scene
-from bladesonar.sim.render import simulate
+from bladesonar.sim.render import Simulator, simulate
 
 PRF = 44100.0 / 1297
 ROOT = Path(__file__).resolve().parents[1]
@@ -135,6 +135,52 @@ def test_the_stage_in_blocks_of_rows_gives_the_bits_of_the_whole(monkeypatch):
     for u, v in zip(blocked, whole, strict=True):
         np.testing.assert_array_equal(u, v)
 
+def wavering(n: int, amp: float, *, L: int = 600, at=(250.0, 420.0),
+             hz=(2.0, 3.1)) -> np.ndarray:
+    """Echoes that keep their range while their strength swings (sine, ``hz`` Hz, zero
+    mean) from pulse to pulse: a reverberant tail or a diffuse echo moving with a fan.
+    Their correlation between pulses peaks at zero shift."""
+    x = np.zeros((n, L))
+    k = np.arange(n)
+    for centre, f in zip(at, hz, strict=True):
+        idx, w = waveform.shaped_taps(np.array([centre]), np.array([1.0]), np.ones(1))
+        x += (amp * np.sin(2 * math.pi * k * f / PRF))[:, None] * waveform.render(idx, w, 0, L)
+    return x
+
+
+def test_echoes_that_keep_their_range_leave_no_mirror_excess():
+    # closed form: an echo of fixed shape e(j) whose strength a_i changes from pulse to
+    # pulse correlates as (sum_i a_i a_i+lag) R_e(s), even in s, so c(s) - c(-s) = 0;
+    # a moving echo leaves its excess on the side it moves to
+    rng = np.random.default_rng(7)
+    n, L = 200, 300
+    shape = rng.standard_normal(L) * np.hanning(L)
+    d = rng.standard_normal(n)[:, None] * shape[None, :]
+    ok = np.ones(n, bool)
+    for lag in (1, 2, 5):
+        c = af.block_correlations(d, ok, lag).sum(axis=0)
+        assert np.abs(af.mirror_excess(c)).max() <= 1e-9 * np.abs(c).max()
+    moving = np.array([np.roll(shape, 2 * i) for i in range(n)])    # 2 samples out a pulse
+    m = af.mirror_excess(af.block_correlations(moving, ok, 1).sum(axis=0))
+    assert af.peak_shift(m) == pytest.approx(2.0, abs=0.5)
+
+
+@pytest.mark.parametrize("v", [-3.0, 3.0])
+def test_a_glint_under_echoes_that_keep_their_range_is_called_by_the_mirror_excess(v):
+    # the strongest moving echoes stay at zero shift (two echoes at fixed ranges whose
+    # strength swings): the plain peak makes no call, the mirror excess finds the glints
+    # moving 3 samples per pulse
+    x = streaks(400, v, noise=0.01, seed=1) + wavering(400, 0.3)
+    a = af.measure(x, np.ones(len(x), bool), PRF)
+    assert a.airflow == ("down" if v < 0 else "up"), a
+    assert "mirror excess" in a.reason and abs(a.t) >= af.CALL_T
+    assert a.shift == pytest.approx(v, abs=0.5)
+    res, ok, static = af.moving_part(x, np.ones(len(x), bool), PRF)
+    d = af.envelope_image(res, ok, static, PRF)
+    plain = af.lag_peaks([af.block_correlations(d, ok, lag) for lag in (1, 2)])
+    assert abs(plain[0]) < 1.5                     # the plain peak near zero shift
+
+
 def _run(seed: int, **over):
     d = random_scene.draw_3d(seed)
     cfg = config.from_mapping({"scene": {"blades": d.blades}})
@@ -154,6 +200,57 @@ def test_random_3d_scenes_give_the_true_airflow(seed):
     # fast, both airflows, 4-18 dB
     d, a = _run(seed)
     assert a.airflow == d.airflow, (d.describe(), a)
+
+
+def _at_rest(seed: int):
+    """``tools/bench_airflow --stopped``'s scene: the room, device, drift and nuisances
+    of ``seed`` with the fan still, and the noise its turning fan's SNR sets."""
+    d = random_scene.draw_3d(seed)
+    cfg = config.from_mapping({"scene": {"blades": d.blades}})
+    turning = Simulator(d.scene, cfg, d.schedule, snr_db=d.snr_db, seed=seed,
+                        drift_ppm=d.drift_ppm, nuisances=d.nuisances, include_paths=False)
+    turning.prepare(d.seconds)
+    still = Simulator(d.scene, cfg, f"stop:0:{d.seconds:g}", snr_db=None, seed=seed,
+                      drift_ppm=d.drift_ppm, nuisances=d.nuisances, include_paths=False)
+    x = np.concatenate([c for c, _ in still.chunks(d.seconds)])
+    x = x + turning.sigma * np.random.default_rng([seed, 9]).standard_normal(len(x))
+    return recording_airflow(np.clip(np.round(x * 32768.0), -32768, 32767) / 32768.0, cfg)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [50, 68, 76, 128])
+def test_far_from_the_axis_the_guards_still_call(seed):
+    # tuning scenes the guards must not silence: 50 (2.25 m off the axis, 1.06 Hz: the
+    # plain peak stays at zero shift, the mirror excess calls), 68 (4.7 dB, 0.23 Hz: the
+    # plain reading's t under CALL_T, the mirror excess's far over it), 76 (2.55 m: the
+    # plain lag-1 peak 0.4 samples out, under NEAR_ZERO, and the mirror excess agrees),
+    # 128 (2.18 m, 1.53 Hz: the plain reading calls, the mirror excess has no second lag)
+    d, a = _run(seed)
+    assert a.airflow == d.airflow, (d.describe(), a)
+    assert abs(a.t) >= af.CALL_T
+
+
+@pytest.mark.slow
+def test_a_plain_peak_at_zero_shift_over_a_lopsided_mirror_excess_is_unknown():
+    # tuning seed 340: 2.58 m off the axis, 0.69 Hz, a down-draft; the plain peaks sit
+    # 1.4 samples out at lag 1 and called up with t 31, while the mirror excess's lag-1
+    # and lag-2 peaks lie on opposite sides (no consistent motion to be read)
+    d, a = _run(340)
+    assert d.airflow == "down" and a.airflow == "unknown", a
+    assert "zero shift" in a.reason and af.SIDES in a.reason
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed, why", [
+    (3, "opposite sides"),    # reverberant, small speaker: mirror excess t -19.7 at rest
+    (125, "standard errors"),  # noise and drift alone: plain peaks 20, 40 out, t 3.5
+])
+def test_fans_at_rest_the_guards_keep_unknown(seed, why):
+    # tuning rooms with the fan still, each of which a guard kept from a call: the
+    # mirror excess's lag-1 and lag-2 peaks on opposite sides, and |t| under CALL_T
+    a = _at_rest(seed)
+    assert a.airflow == "unknown", a
+    assert why in a.reason, a
 
 
 @pytest.mark.slow
