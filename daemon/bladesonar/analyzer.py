@@ -201,10 +201,11 @@ class PulseAnalyzer:
     #: predicts a changing rate from there to the present: LiveAnalyzer.estimate)
     state_edge: float | None = None
     new_events: list[Event] = field(default_factory=list)
-    #: the decision cadence (tracking.decide_every): features waiting for the meters, and
-    #: pulses since the last decision
-    _pending: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    #: the decision cadence (tracking.decide_every): pulses since the last decision
     _since: int = 0
+    #: the long meter's statistic at the last decision (the alias watch and the
+    #: reference-fit watch read it between decisions)
+    motion_fed: float = float("nan")
     decided: Decision | None = None               # the last decision (before the machine)
     _quiet: bool = False                          # the last decision's short meter was quiet
     bursts: dev.BurstGate = field(default_factory=dev.BurstGate)   # pulses skipped: .bursts
@@ -294,12 +295,21 @@ class PulseAnalyzer:
         out: list[dict[str, Any]] = []
         fs = self.cfg.audio.sample_rate
         every = self.cfg.tracking.decide_every
+        # the meters' statistics at the block's decisions, in a few matrix products (the
+        # pulses are added to the meters once the block is done)
+        at: dict[int, int] = {}
+        since, first = self._since, self.state is None
+        for i in range(len(feats)):
+            since += 1
+            if since >= every or first:
+                at[i + 1], since, first = len(at), 0, False
+        ends = np.fromiter(at, dtype=np.int64, count=len(at))
+        pm, ps = self.motion.preview(feats, ends), self.still.preview(still_feats, ends)
         for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v], strict=True)):
             if int(k) in self._restart_at:
                 self._restart_track()
             st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
             self._follow_phase(int(k), st)
-            self._pending.append((feats[i], still_feats[i]))
             tr = self.tracker
             self.aliases.push(int(k), dist[i], math.nan if not st.locked else
                               float(tr.fx[0]) if tr.fx is not None else st.phase)
@@ -322,7 +332,9 @@ class PulseAnalyzer:
             if self._since >= every or self.state is None:
                 # counted over all valid pulses, so that the daemon (blocks of 8)
                 # and analyze (large blocks) decide on the same pulses
-                d = self.decided = self.decision()
+                q = at[i + 1]
+                self.motion_fed = float(pm.motion[q])
+                d = self.decided = self.decision((self.motion_fed, float(ps.motion[q])))
                 state, fired = self.transitions.step(t_s, int(k), d, self._since)
                 self.state = self._reported_rate(state)
                 self.state_edge = float(edge)
@@ -346,8 +358,12 @@ class PulseAnalyzer:
             if changed and saved is not None:
                 after = block.index > int(k)
                 if np.any(after & block.valid):
+                    self.motion.commit(pm, i + 1)
+                    self.still.commit(ps, i + 1)
                     out.extend(self._redo_rest(block, int(k), saved, rows))
                     return out
+        self.motion.commit(pm)
+        self.still.commit(ps)
         return out
 
     def _prepare(self, block: AlignedPulses) -> tuple[np.ndarray, np.ndarray, np.ndarray,
@@ -638,8 +654,7 @@ class PulseAnalyzer:
         """The alias watch (:class:`aliasing.AliasWatch`) on the current track; it needs
         the long meter only for a track standing still (checked while the fan moves)."""
         def moving() -> bool:
-            motion, _ = self.motion.statistic()
-            return motion >= self.cfg.tracking.motion_threshold
+            return self.motion_fed >= self.cfg.tracking.motion_threshold
         resting = self.static.frozen or self._quiet or (
             self.decided is not None and self.decided.direction == "stopped")
         self.aliases.check(self.tracker, accel=self._clear_accel(), moving=moving,
@@ -680,18 +695,12 @@ class PulseAnalyzer:
         a, sd = self.tracker.accel
         return max(abs(a) - 2.0 * sd, 0.0) if math.isfinite(sd) else 0.0
 
-    def _feed_meters(self) -> None:
-        """The motion meters take the pulses since the last decision in one block."""
-        if self._pending:
-            f, sf = zip(*self._pending, strict=True)
-            self.motion.update_block(np.stack(f))
-            self.still.update_block(np.stack(sf))
-            self._pending = []
-
-    def decision(self) -> Decision:
-        """The answer for the last ``window`` pulses (up to the last pulse fed)."""
-        self._feed_meters()
-        motion, _ = self.motion.statistic()
+    def decision(self, meters: tuple[float, float] | None = None) -> Decision:
+        """The answer for the last ``window`` pulses (up to the last pulse fed);
+        ``meters``: the long and short meters' statistics there (process() has them from
+        its block's preview), else read from the meters."""
+        motion, still = meters if meters is not None else (self.motion.statistic()[0],
+                                                           self.still.statistic()[0])
         if motion < self.cfg.tracking.motion_threshold and self._lags_short:
             motion = float("nan")   # no verdict on motion (see __post_init__)
         # scene: static echo energy over the noise per pulse (raw domain); while nothing
@@ -709,7 +718,6 @@ class PulseAnalyzer:
         rate, sd = self.tracker.rate
         prf = self.cfg.prf_hz
         accel, _ = self.tracker.accel
-        still, _ = self.still.statistic()
         # the short meter sees no change beyond noise: the fan may be coming to rest, and
         # a track coasting on is no direction to check against its mirror
         self._quiet = still < self._decide_settings.still_threshold
