@@ -34,17 +34,22 @@ from .fingerprint import envelope_features
 #: little more than the least work (a whole window at a time did three times it).
 PREVIEW_ROWS = 32
 
-def _prefix_sums(a: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Sums of the first p rows of ``a`` for each p of ``points`` (ascending): a slice's
-    sum per point (numpy's cumsum down the rows of a C-ordered block took three times as
-    long as all the rows' sums in slices)."""
-    out = np.empty((len(points), a.shape[1]))
-    acc = np.zeros(a.shape[1])
-    prev = 0
+def _prefix_sums(parts: list[np.ndarray], points: np.ndarray) -> np.ndarray:
+    """Sums of the first p rows of the arrays ``parts`` one after the other, for each p
+    of ``points`` (ascending; no copy of them joined): a slice's sum per point (numpy's
+    cumsum down the rows of a C-ordered block took three times as long)."""
+    width = parts[-1].shape[1]
+    out = np.empty((len(points), width))
+    acc = np.zeros(width)
+    part, base, prev = 0, 0, 0               # the part row ``prev`` is in, its first row
     for i, p in enumerate(points.tolist()):
-        if p > prev:
-            acc = acc + a[prev:p].sum(axis=0)
-            prev = p
+        while prev < p:
+            while prev - base >= len(parts[part]):
+                base += len(parts[part])
+                part += 1
+            take = min(p, base + len(parts[part]))
+            acc = acc + parts[part][prev - base:take - base].sum(axis=0)
+            prev = take
         out[i] = acc
     return out
 
@@ -222,10 +227,9 @@ class MotionMeter:
         esum = e_c[ends] - e_c[starts]
         # the window's sum of pulses: the ring's running sum, plus the new ones, minus
         # those that left (the oldest of ext)
-        gone = int(starts.max()) if len(at) else 0
-        left = self._s[order[:gone]] if gone <= h0 else \
-            np.concatenate([self._s[order], xs[:gone - h0]])
-        total = self._sum + _prefix_sums(xs, at) - _prefix_sums(left, starts)
+        first = (self._n - h0) % W                       # the ring's oldest pulse, in place
+        ring = [self._s[first:min(first + h0, W)], self._s[:max(first + h0 - W, 0)]]
+        total = self._sum + _prefix_sums([xs], at) - _prefix_sums(ring + [xs], starts)
         with np.errstate(divide="ignore", invalid="ignore"):
             nn = np.maximum(counts, 1).astype(np.float64)
             dm = dsum / np.maximum(nn[:, None] - lags[None, :], 1.0)
