@@ -182,21 +182,30 @@ class StaticRemover:
         before = (self.history.copy(), self._next_copy)
         saved_gate = gate.copy()
         res = np.empty_like(x)
-        # the estimate before each pulse (row i) and after the last (row n)
-        means = np.empty((n + 1, x.shape[1]))
+        # the estimate before each pulse, 32 pulses at a time (row j + 1 after pulse j),
+        # and the dot products the gains need, taken for those pulses together
+        means = np.empty((33, x.shape[1]))
         means[0] = self.mean
         step = np.empty(x.shape[1])
         keep = [] if index is None else index.tolist()
-        for i in range(n):
-            np.subtract(x[i], means[i], out=res[i])
-            if self.frozen:
-                means[i + 1] = means[i]
-            else:
-                np.multiply(res[i], a, out=step)            # mean += a * res, as above
-                np.add(means[i], step, out=means[i + 1])
-            if keep and keep[i] >= self._next_copy:
-                self.history.append((keep[i], means[i + 1].copy()))
-                self._next_copy = keep[i] + SNAPSHOT_EVERY
+        mm, xm = np.empty(n), np.empty(n)
+        for c0 in range(0, n, 32):
+            c1 = min(c0 + 32, n)
+            for i in range(c0, c1):
+                j = i - c0
+                np.subtract(x[i], means[j], out=res[i])
+                if self.frozen:
+                    means[j + 1] = means[j]
+                else:
+                    np.multiply(res[i], a, out=step)        # mean += a * res, as above
+                    np.add(means[j], step, out=means[j + 1])
+                if keep and keep[i] >= self._next_copy:
+                    self.history.append((keep[i], means[j + 1].copy()))
+                    self._next_copy = keep[i] + SNAPSHOT_EVERY
+            m = means[:c1 - c0]
+            mm[c0:c1] = np.einsum("ij,ij->i", m, m)
+            xm[c0:c1] = np.einsum("ij,ij->i", x[c0:c1], m)
+            means[0] = means[c1 - c0]
         sq = res[:, ::4] * res[:, ::4]
         h = sq.shape[1] // 2
         levels = np.partition(sq, h, axis=1)[:, h].tolist()
@@ -206,9 +215,7 @@ class StaticRemover:
                 self.history, self._next_copy = before
                 gate.__dict__.update(saved_gate.__dict__)
                 return None
-        self.mean[:] = means[n]
-        mm = np.einsum("ij,ij->i", means[:n], means[:n])
-        xm = np.einsum("ij,ij->i", x, means[:n])
+        self.mean[:] = means[0]
         for m2, xmi in zip(mm.tolist(), xm.tolist(), strict=True):
             g = xmi / m2 if m2 > 0 else 1.0
             if g > 0:
