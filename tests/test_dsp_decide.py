@@ -175,3 +175,37 @@ def test_a_short_gate_raises_the_rest_threshold_above_the_configured_one():
                                 ref_cycles_per_pulse=0.05, ref_rate_hz=0.45, settings=s)
     assert decide(still=1.18, **args).direction == "stopped"
     assert decide(still=1.21, **args).direction == "unknown"
+
+
+@pytest.mark.parametrize("block", [1, 3, 8, 40, 130, 256])
+def test_a_previewed_block_gives_the_statistic_after_each_prefix(block):
+    """MotionMeter.preview (analyze's decisions in blocks of pulses) gives, after each
+    prefix it is asked for, the statistic a meter fed one pulse at a time gives over the
+    same window (the definitions' sums, from running sums instead), before the ring is
+    full and after it has wrapped, for blocks longer than the window too; commit adds
+    only the prefix asked for (a block cut short where the static estimate changed)."""
+    from bladesonar.dsp.decide import MotionMeter
+    rng = np.random.default_rng(100 + block)
+    window, lag = 40, 12
+    x = 0.3 + rng.standard_normal((700, 20)) * np.linspace(0.5, 2.0, 700)[:, None]
+    m = MotionMeter(20, window, lag)
+    i = checked = 0
+    while i < len(x):
+        xs = x[i:i + block]
+        at = np.arange(0, len(xs) + 1, 1 if block < 8 else 3)
+        pv = m.preview(xs, at)
+        for q, j in enumerate(at.tolist()):
+            fed = i + j
+            if fed < lag + 2:
+                assert np.isnan(pv.motion[q]) and np.isnan(pv.scene[q])
+                continue
+            want = _motion_by_definition(x[max(fed - window, 0):fed], lag)
+            np.testing.assert_allclose((pv.motion[q], pv.scene[q]), want, rtol=1e-9)
+            checked += 1
+        keep = len(xs) if block < 8 else len(xs) // 2 + 1
+        m.commit(pv, keep)
+        i += keep
+    assert checked > 100
+    # what was committed is what statistic() reads
+    np.testing.assert_allclose(m.statistic(), _motion_by_definition(x[-window:], lag),
+                               rtol=1e-9)

@@ -139,6 +139,10 @@ class StaticRemover:
         numbers ``index``, a copy of the estimate is kept every SNAPSHOT_EVERY pulses
         (``history``: the same pulses whatever the blocks)."""
         x = np.array(pulses, dtype=np.float64)
+        if not self.normalise and len(x) > 1:
+            got = self._unburst_block(x, gate, index)
+            if got is not None:
+                return got
         a, mean = self.alpha, self.mean
         res = np.empty_like(x)
         burst = np.zeros(len(x), bool)
@@ -167,6 +171,58 @@ class StaticRemover:
                 self._next_copy = int(index[i]) + SNAPSHOT_EVERY
         return x, res, burst
 
+    def _unburst_block(self, x: np.ndarray, gate: dev.BurstGate, index: np.ndarray | None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """skip_bursts on a block with no burst in it, unscaled (``normalise`` off): the
+        recursion alone runs pulse by pulse (the same operations, the same estimate
+        and residuals), the burst levels and the gains are taken for the whole block
+        afterwards (the gains' dot products summed in another order: the gain figures
+        may move in their last bits). None, with nothing changed, when a pulse of the
+        block is a burst: skip_bursts then runs pulse by pulse."""
+        a, n = self.alpha, len(x)
+        before = (self.history.copy(), self._next_copy)
+        saved_gate = gate.copy()
+        res = np.empty_like(x)
+        # the estimate before each pulse, 32 pulses at a time (row j + 1 after pulse j),
+        # and the dot products the gains need, taken for those pulses together
+        means = np.empty((33, x.shape[1]))
+        means[0] = self.mean
+        step = np.empty(x.shape[1])
+        keep = [] if index is None else index.tolist()
+        mm, xm = np.empty(n), np.empty(n)
+        for c0 in range(0, n, 32):
+            c1 = min(c0 + 32, n)
+            for i in range(c0, c1):
+                j = i - c0
+                np.subtract(x[i], means[j], out=res[i])
+                if self.frozen:
+                    means[j + 1] = means[j]
+                else:
+                    np.multiply(res[i], a, out=step)        # mean += a * res, as above
+                    np.add(means[j], step, out=means[j + 1])
+                if keep and keep[i] >= self._next_copy:
+                    self.history.append((keep[i], means[j + 1].copy()))
+                    self._next_copy = keep[i] + SNAPSHOT_EVERY
+            m = means[:c1 - c0]
+            mm[c0:c1] = np.einsum("ij,ij->i", m, m)
+            xm[c0:c1] = np.einsum("ij,ij->i", x[c0:c1], m)
+            means[0] = means[c1 - c0]
+        sq = res[:, ::4] * res[:, ::4]
+        h = sq.shape[1] // 2
+        levels = np.partition(sq, h, axis=1)[:, h].tolist()
+        for lv in levels:
+            if gate(lv):
+                # a burst: everything back as it was, and the pulse-by-pulse loop
+                self.history, self._next_copy = before
+                gate.__dict__.update(saved_gate.__dict__)
+                return None
+        self.mean[:] = means[0]
+        for m2, xmi in zip(mm.tolist(), xm.tolist(), strict=True):
+            g = xmi / m2 if m2 > 0 else 1.0
+            if g > 0:
+                self._note_gain(g)
+        return x, res, np.zeros(n, bool)
+
 
 def _rows_of(block: AlignedPulses, keep: np.ndarray) -> AlignedPulses:
     """The pulses of ``block`` where ``keep`` is true."""
@@ -190,6 +246,11 @@ class PulseAnalyzer:
     motion: MotionMeter = field(init=False)
     window: int = field(init=False)
     _recent: list[tuple[bool, float]] = field(default_factory=list)  # (accepted, quality)
+    #: the same as arrays (a decision reads the window's without building them from the
+    #: list): the last _recent_n entries of each, oldest first, in room for a few windows
+    _recent_acc: np.ndarray = field(init=False, repr=False)
+    _recent_q: np.ndarray = field(init=False, repr=False)
+    _recent_n: int = 0
     _prev: np.ndarray | None = None               # last raw pulse (for the noise level)
     _noise: float = float("nan")                  # running raw half lag-1 difference energy
     dropped: int = 0
@@ -202,10 +263,11 @@ class PulseAnalyzer:
     #: predicts a changing rate from there to the present: LiveAnalyzer.estimate)
     state_edge: float | None = None
     new_events: list[Event] = field(default_factory=list)
-    #: the decision cadence (tracking.decide_every): features waiting for the meters, and
-    #: pulses since the last decision
-    _pending: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    #: the decision cadence (tracking.decide_every): pulses since the last decision
     _since: int = 0
+    #: the long meter's statistic at the last decision (the alias watch and the
+    #: reference-fit watch read it between decisions)
+    motion_fed: float = float("nan")
     decided: Decision | None = None               # the last decision (before the machine)
     _quiet: bool = False                          # the last decision's short meter was quiet
     bursts: dev.BurstGate = field(default_factory=dev.BurstGate)   # pulses skipped: .bursts
@@ -241,6 +303,8 @@ class PulseAnalyzer:
         self.transitions = Transitions(transition_settings(self.cfg), self.cfg.prf_hz)
         self._decide_settings = decide_settings(self.cfg)
         self.window = max(int(round(self.cfg.daemon.window_s * self.cfg.prf_hz)), 20)
+        self._recent_acc = np.zeros(4 * self.window)
+        self._recent_q = np.zeros(4 * self.window)
         # lags up to the blade period at the slowest rate followed (reference rate / slew
         # limit): at some lag within it a moving pattern recurs
         slowest = self.ref.cycles_per_pulse / self.cfg.tracking.slew_limit
@@ -295,15 +359,27 @@ class PulseAnalyzer:
         out: list[dict[str, Any]] = []
         fs = self.cfg.audio.sample_rate
         every = self.cfg.tracking.decide_every
-        for i, (k, edge) in enumerate(zip(block.index[v], block.edges[v], strict=True)):
-            if int(k) in self._restart_at:
+        # the meters' statistics at the block's decisions, in a few matrix products (the
+        # pulses are added to the meters once the block is done)
+        at: dict[int, int] = {}
+        since, first = self._since, self.state is None
+        for i in range(len(feats)):
+            since += 1
+            if since >= every or first:
+                at[i + 1], since, first = len(at), 0, False
+        ends = np.fromiter(at, dtype=np.int64, count=len(at))
+        pm, ps = self.motion.preview(feats, ends), self.still.preview(still_feats, ends)
+        # Python's numbers, not numpy's scalars, in the loop (the same values)
+        phases, quals = m.phase.tolist(), m.quality.tolist()
+        for i, (k, edge) in enumerate(zip(block.index[v].tolist(), block.edges[v].tolist(),
+                                          strict=True)):
+            if k in self._restart_at:
                 self._restart_track()
-            st = self.tracker.update(int(k), float(m.phase[i]), float(m.quality[i]))
-            self._follow_phase(int(k), st)
-            self._pending.append((feats[i], still_feats[i]))
+            st = self.tracker.update(k, phases[i], quals[i])
+            self._follow_phase(k, st)
             tr = self.tracker
-            self.aliases.push(int(k), dist[i], math.nan if not st.locked else
-                              float(tr.fx[0]) if tr.fx is not None else st.phase)
+            self.aliases.push(k, dist[i], math.nan if not st.locked else
+                              tr.fx.item(0) if tr.fx is not None else st.phase)
             self._check_aliases()
             if self.aliases.count % RECHECK_EVERY == 0:
                 self._recheck_track()
@@ -313,42 +389,46 @@ class PulseAnalyzer:
                 self._noise = e if not math.isfinite(self._noise) else (
                     self._noise + (e - self._noise) / self.window)
             self._prev = xv[i]
-            self._recent.append((not st.outlier and st.locked, float(m.quality[i])))
-            if len(self._recent) > self.window:
-                del self._recent[0]
-            t_s = float(edge) / fs
+            self._note_match(not st.outlier and st.locked, quals[i])
+            t_s = edge / fs
             self._since += 1
             fired: list[Event] = []
             changed = False
             if self._since >= every or self.state is None:
                 # counted over all valid pulses, so that the daemon (blocks of 8)
                 # and analyze (large blocks) decide on the same pulses
-                d = self.decided = self.decision()
-                state, fired = self.transitions.step(t_s, int(k), d, self._since)
+                q = at[i + 1]
+                self.motion_fed = float(pm.motion[q])
+                d = self.decided = self.decision((self.motion_fed, float(ps.motion[q])))
+                state, fired = self.transitions.step(t_s, k, d, self._since)
                 self.state = self._reported_rate(state)
-                self.state_edge = float(edge)
+                self.state_edge = edge
                 self.new_events.extend(fired)
                 self._since = 0
-                changed = self._hold_static(int(k), d)
+                changed = self._hold_static(k, d)
                 self._bound_rate(t_s)
                 if self.static.frozen:
                     self.tracker.expect_change()     # a fan at rest may start any moment
             if rows:
-                row: dict[str, Any] = {"t_s": round(t_s, 4), "pulse": int(k),
-                       "phase": round(float(m.phase[i]), 4),
-                       "quality": round(float(m.quality[i]), 4),
+                row: dict[str, Any] = {"t_s": round(t_s, 4), "pulse": k,
+                       "phase": round(phases[i], 4),
+                       "quality": round(quals[i], 4),
                        "track_phase": None if not st.locked else round(st.phase, 4),
                        "track_sd": None if not st.locked or self.tracker.P is None else round(
-                           math.sqrt(max(float(self.tracker.P[0, 0]), 0.0)), 5),
+                           math.sqrt(max(self.tracker.P.item(0, 0), 0.0)), 5),
                        "outlier": st.outlier}
                 row.update(self.state.as_dict())
                 row["event"] = fired[-1].kind if fired else None
                 out.append(row)
             if changed and saved is not None:
-                after = block.index > int(k)
+                after = block.index > k
                 if np.any(after & block.valid):
-                    out.extend(self._redo_rest(block, int(k), saved, rows))
+                    self.motion.commit(pm, i + 1)
+                    self.still.commit(ps, i + 1)
+                    out.extend(self._redo_rest(block, k, saved, rows))
                     return out
+        self.motion.commit(pm)
+        self.still.commit(ps)
         return out
 
     def _prepare(self, block: AlignedPulses) -> tuple[np.ndarray, np.ndarray, np.ndarray,
@@ -489,6 +569,21 @@ class PulseAnalyzer:
             return None
         return mean
 
+    def _note_match(self, accepted: bool, quality: float) -> None:
+        """Keep a pulse's match (accepted by the track, its quality) for the window."""
+        self._recent.append((accepted, quality))
+        if len(self._recent) > self.window:
+            del self._recent[0]
+        n = self._recent_n
+        if n == len(self._recent_q):             # full: the last window to the front
+            keep = self.window - 1
+            self._recent_acc[:keep] = self._recent_acc[n - keep:n]
+            self._recent_q[:keep] = self._recent_q[n - keep:n]
+            n = keep
+        self._recent_acc[n] = 1.0 if accepted else 0.0
+        self._recent_q[n] = quality
+        self._recent_n = n + 1
+
     def recent_match(self) -> tuple[float, float]:
         """(share of the last window's matches the track accepted, their mean match
         quality); NaN before any match. The daemon's reference-fit watch reads it."""
@@ -511,8 +606,8 @@ class PulseAnalyzer:
                 or tr.last_k - tr.start_k < 2 * st.init_pulses:
             return False
         floor = self._cycles_per_pulse(0.5 * self._decide_settings.rate_floor_hz)
-        sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
-        if abs(float(tr.x[1])) + 2.0 * sd >= floor:
+        sd = math.sqrt(max(tr.P.item(1, 1), 0.0))
+        if abs(tr.x.item(1)) + 2.0 * sd >= floor:
             return False
         recent = self._recent[-st.init_pulses:]
         w = [q * q for _, q in recent]
@@ -616,7 +711,7 @@ class PulseAnalyzer:
         rate = now
         if d.rate_state == RateState.SETTLED:
             mean = self.window_rate()
-            steady = mean if mean is not None else float(tr.x[1])
+            steady = mean if mean is not None else tr.x.item(1)
             if steady * now > 0 and abs(steady - now) <= SETTLED_AGREE * abs(steady):
                 rate = steady
         if not (math.isfinite(rate) and rate * d.relative_rate > 0):
@@ -639,8 +734,7 @@ class PulseAnalyzer:
         """The alias watch (:class:`aliasing.AliasWatch`) on the current track; it needs
         the long meter only for a track standing still (checked while the fan moves)."""
         def moving() -> bool:
-            motion, _ = self.motion.statistic()
-            return motion >= self.cfg.tracking.motion_threshold
+            return self.motion_fed >= self.cfg.tracking.motion_threshold
         resting = self.static.frozen or self._quiet or (
             self.decided is not None and self.decided.direction == Direction.STOPPED)
         self.aliases.check(self.tracker, accel=self._clear_accel(), moving=moving,
@@ -660,8 +754,8 @@ class PulseAnalyzer:
         if not tr.locked or self.aliases.verified == tr.identity:
             return
         assert tr.x is not None and tr.P is not None and tr.last_k is not None   # locked
-        rate = float(tr.x[1])
-        sd = math.sqrt(max(float(tr.P[1, 1]), 0.0))
+        rate = tr.x.item(1)
+        sd = math.sqrt(max(tr.P.item(1, 1), 0.0))
         span = int(tr.last_k - tr.start_k) + 1 if tr.start_k is not None else self.window
         fracs = aliasing.near_fractions(rate, span=span, rate_std=sd,
                                         accel=self._clear_accel())
@@ -674,6 +768,7 @@ class PulseAnalyzer:
         if tr.recheck(aliases):
             # the old line's rejections say nothing about the new one
             self._recent.clear()
+            self._recent_n = 0
 
     def _clear_accel(self) -> float:
         """The tracked acceleration beyond twice its standard deviation (0 when it could be
@@ -681,26 +776,21 @@ class PulseAnalyzer:
         a, sd = self.tracker.accel
         return max(abs(a) - 2.0 * sd, 0.0) if math.isfinite(sd) else 0.0
 
-    def _feed_meters(self) -> None:
-        """The motion meters take the pulses since the last decision in one block."""
-        if self._pending:
-            f, sf = zip(*self._pending, strict=True)
-            self.motion.update_block(np.stack(f))
-            self.still.update_block(np.stack(sf))
-            self._pending = []
-
-    def decision(self) -> Decision:
-        """The answer for the last ``window`` pulses (up to the last pulse fed)."""
-        self._feed_meters()
-        motion, _ = self.motion.statistic()
+    def decision(self, meters: tuple[float, float] | None = None) -> Decision:
+        """The answer for the last ``window`` pulses (up to the last pulse fed);
+        ``meters``: the long and short meters' statistics there (process() has them from
+        its block's preview), else read from the meters."""
+        motion, still = meters if meters is not None else (self.motion.statistic()[0],
+                                                           self.still.statistic()[0])
         if motion < self.cfg.tracking.motion_threshold and self._lags_short:
             motion = float("nan")   # no verdict on motion (see __post_init__)
         # scene: static echo energy over the noise per pulse (raw domain); while nothing
         # changes between pulses, lag-1 differences of raw pulses are pure noise
         st = self.static.mean
         scene = float(st @ st) / self._noise if self._noise > 0 else float("nan")
-        acc = np.array([r[0] for r in self._recent], dtype=np.float64)
-        qual = np.array([r[1] for r in self._recent], dtype=np.float64)
+        n = self._recent_n
+        acc = self._recent_acc[n - len(self._recent):n]
+        qual = self._recent_q[n - len(self._recent):n]
         # share of the informative matches that the track accepted, each weighted like the
         # filter weighs it (1 / measurement variance, i.e. quality squared)
         wq = qual * qual
@@ -710,7 +800,6 @@ class PulseAnalyzer:
         rate, sd = self.tracker.rate
         prf = self.cfg.prf_hz
         accel, _ = self.tracker.accel
-        still, _ = self.still.statistic()
         # the short meter sees no change beyond noise: the fan may be coming to rest, and
         # a track coasting on is no direction to check against its mirror
         self._quiet = still < self._decide_settings.still_threshold

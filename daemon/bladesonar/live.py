@@ -186,8 +186,7 @@ class LiveAnalyzer:
         an = self.analyzer
         if an is None or an.state is None:
             return None
-        motion, _ = an.motion.statistic()
-        moving = bool(motion >= self.cfg.tracking.motion_threshold) or \
+        moving = bool(an.motion_fed >= self.cfg.tracking.motion_threshold) or \
             an.state.direction in WAYS
         _, quality = an.recent_match()
         return moving, quality

@@ -32,6 +32,43 @@ from ..answer import (
 from ..answer import Direction, RateState
 from .fingerprint import envelope_features
 
+#: New pulses whose lag energies one matrix product gives (MotionMeter.preview): each
+#: product also spans the max_lag pulses before them, so a few dozen at a time does
+#: little more than the least work (a whole window at a time did three times it).
+PREVIEW_ROWS = 32
+
+def _prefix_sums(parts: list[np.ndarray], points: np.ndarray) -> np.ndarray:
+    """Sums of the first p rows of the arrays ``parts`` one after the other, for each p
+    of ``points`` (ascending; no copy of them joined): a slice's sum per point (numpy's
+    cumsum down the rows of a C-ordered block took three times as long)."""
+    width = parts[-1].shape[1]
+    out = np.empty((len(points), width))
+    acc = np.zeros(width)
+    part, base, prev = 0, 0, 0               # the part row ``prev`` is in, its first row
+    for i, p in enumerate(points.tolist()):
+        while prev < p:
+            while prev - base >= len(parts[part]):
+                base += len(parts[part])
+                part += 1
+            take = min(p, base + len(parts[part]))
+            acc = acc + parts[part][prev - base:take - base].sum(axis=0)
+            prev = take
+        out[i] = acc
+    return out
+
+
+@dataclass(frozen=True)
+class MeterBlock:
+    """A block of pulses previewed by :meth:`MotionMeter.preview`: the pulses, their lag
+    energies and squared norms (for :meth:`MotionMeter.commit`), and the statistic after
+    each prefix of them (``motion``, ``scene``: n + 1 values, the first for none)."""
+
+    xs: np.ndarray
+    rows: np.ndarray
+    e: np.ndarray
+    motion: np.ndarray
+    scene: np.ndarray
+
 
 class MotionMeter:
     """Streaming motion statistic over the last ``window`` pulses.
@@ -97,6 +134,11 @@ class MotionMeter:
             for i in range(0, n, self.window):
                 self.update_block(xs[i:i + self.window])
             return
+        self._store(xs, *self._rows(xs))
+
+    def _rows(self, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lag energies, |x|^2) of new pulses ``xs`` (n <= window) after the ring's."""
+        n = len(xs)
         M = self.max_lag
         h = min(self._n, M)                              # history pulses available
         # products of the new pulses with the last h ones and with each other, the
@@ -112,6 +154,11 @@ class MotionMeter:
         src, missing, cols = self._index(h, n)
         rows = 0.5 * (e_new[:, None] + e_ext[src] - 2.0 * gram[src, cols])
         rows[missing] = 0.0
+        return rows, e_new
+
+    def _store(self, xs: np.ndarray, rows: np.ndarray, e_new: np.ndarray) -> None:
+        """Write new pulses (n <= window) and their lag energies into the rings."""
+        n = len(xs)
         j0 = self._n % self.window
         j: slice | np.ndarray
         if j0 + n <= self.window and self._n >= self.window:
@@ -132,6 +179,81 @@ class MotionMeter:
             # once a window, the running sum is taken afresh: what rounding left in it
             # does not build up over hours
             self._sum = self._s[:self.count].sum(axis=0)
+
+    def preview(self, xs: np.ndarray, at: np.ndarray | None = None) -> MeterBlock:
+        """The statistic after prefixes of consecutive new pulses ``xs`` (n, length),
+        without adding them: ``motion[i]`` and ``scene[i]`` are :meth:`statistic`'s after
+        the first ``at[i]`` of them (``at``: ascending, in 0..n; default every prefix,
+        0..n), to rounding. :meth:`commit` then adds them.
+
+        Why: a decision every few pulses asked the meter for its statistic, and the meter
+        did a matrix product and its sums for those few pulses each time; a block of
+        pulses (analyze's 256 PRIs) is done in a few products, and the window sums at
+        its decisions come from running sums."""
+        xs = np.asarray(xs, dtype=np.float64)
+        n, M, W = len(xs), self.max_lag, self.window
+        at = np.arange(n + 1) if at is None else np.asarray(at, dtype=np.int64)
+        h0 = self.count
+        order = (self._n - h0 + np.arange(h0)) % W      # the ring's pulses, oldest first
+        # the lag energies, PREVIEW_ROWS new pulses at a time, each against the M pulses
+        # before it (the ring's last h, then the block's own)
+        h = min(h0, M)
+        hist = self._s[order[h0 - h:]]
+        e_new = np.einsum("ij,ij->i", xs, xs)
+        e_ext = np.concatenate([self._e[order[h0 - h:]], e_new])
+        rows = np.empty((n, M))
+        for a in range(0, n, PREVIEW_ROWS):
+            b = min(a + PREVIEW_ROWS, n)
+            lo = max(h + a - M, 0)
+            new = xs[a:b].T
+            gram = xs[lo - h:b] @ new if lo >= h else \
+                np.vstack([hist[lo:] @ new, xs[:b] @ new])    # (h + b - lo, b - a)
+            src, missing, cols = self._index(h + a - lo, b - a)
+            r = 0.5 * (e_new[a:b, None] + e_ext[lo + src] - 2.0 * gram[src, cols])
+            r[missing] = 0.0
+            rows[a:b] = r
+        # the window after j new pulses: its count, and where it starts and ends among
+        # the ring's pulses (oldest first) followed by the new ones ("ext")
+        counts = np.minimum(self._n + at, W)
+        ends = h0 + at
+        starts = ends - counts
+        # D_m over the window: the lag-m energies of its pulses whose predecessor at lag m
+        # is in it too, from running sums over ext (a pulse's energies are 0 at lags
+        # beyond the first pulse fed)
+        d_ext = np.concatenate([self._d[order], rows])
+        c = np.zeros((h0 + n + 1, M))
+        np.cumsum(d_ext, axis=0, out=c[1:])
+        lags = self._lags
+        inner = np.minimum(starts[:, None] + lags[None, :], ends[:, None])
+        dsum = c[ends] - c[inner, lags - 1]
+        e_c = np.concatenate([[0.0], np.cumsum(np.concatenate([self._e[order], e_new]))])
+        esum = e_c[ends] - e_c[starts]
+        # the window's sum of pulses: the ring's running sum, plus the new ones, minus
+        # those that left (the oldest of ext)
+        first = (self._n - h0) % W                       # the ring's oldest pulse, in place
+        ring = [self._s[first:min(first + h0, W)], self._s[:max(first + h0 - W, 0)]]
+        total = self._sum + _prefix_sums([xs], at) - _prefix_sums(ring + [xs], starts)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            nn = np.maximum(counts, 1).astype(np.float64)
+            dm = dsum / np.maximum(nn[:, None] - lags[None, :], 1.0)
+            noise = dm.min(axis=1) if len(at) else np.zeros(0)
+            mean = total / nn[:, None]
+            mm = np.einsum("ij,ij->i", mean, mean)
+            var = esum / nn - mm
+            ok = noise > 0
+            motion = np.where(ok, var / np.where(ok, noise, 1.0),
+                              np.where(var <= 0, 1.0, np.inf))
+            scene = np.where(ok, mm / np.where(ok, noise, 1.0), np.inf)
+        few = counts < M + 2
+        motion[few] = scene[few] = np.nan
+        return MeterBlock(xs, rows, e_new, motion, scene)
+
+    def commit(self, block: MeterBlock, j: int | None = None) -> None:
+        """Add the first ``j`` (default: all) pulses of a :meth:`preview`."""
+        j = len(block.xs) if j is None else int(j)
+        for a in range(0, j, self.window):
+            b = min(a + self.window, j)
+            self._store(block.xs[a:b], block.rows[a:b], block.e[a:b])
 
     @property
     def count(self) -> int:

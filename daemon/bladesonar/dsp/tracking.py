@@ -131,8 +131,8 @@ def kalman_predict(x: np.ndarray, P: np.ndarray, q: float, steps: int = 1,
     if dim == 2:
         # the default tracker's per-pulse path: closed forms, no matrix products
         n = float(steps)
-        ph, w = float(x[0]), float(x[1])
-        p00, p01, p11 = float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
+        ph, w = x.item(0), x.item(1)
+        p00, p01, p11 = P.item(0, 0), P.item(0, 1), P.item(1, 1)
         a00 = p00 + 2 * n * p01 + n * n * p11 + q * n ** 3 / 3.0
         a01 = p01 + n * p11 + q * n * n / 2.0
         return (np.array([(ph + n * w) % 1.0, w]),
@@ -142,9 +142,9 @@ def kalman_predict(x: np.ndarray, P: np.ndarray, q: float, steps: int = 1,
         # Q = process_noise), no matrix products; tests compare it with them
         n = float(steps)
         h = 0.5 * n * n
-        ph, w, a = float(x[0]), float(x[1]), float(x[2])
-        p00, p01, p02 = float(P[0, 0]), float(P[0, 1]), float(P[0, 2])
-        p11, p12, p22 = float(P[1, 1]), float(P[1, 2]), float(P[2, 2])
+        ph, w, a = x.item(0), x.item(1), x.item(2)
+        p00, p01, p02 = P.item(0, 0), P.item(0, 1), P.item(0, 2)
+        p11, p12, p22 = P.item(1, 1), P.item(1, 2), P.item(2, 2)
         r00, r01, r02 = p00 + n * p01 + h * p02, p01 + n * p11 + h * p12, \
             p02 + n * p12 + h * p22
         r11, r12 = p11 + n * p12, p12 + n * p22
@@ -167,7 +167,7 @@ def kalman_predict(x: np.ndarray, P: np.ndarray, q: float, steps: int = 1,
 
 def innovation(x: np.ndarray, P: np.ndarray, z: float, r: float) -> tuple[float, float]:
     """Wrap-aware innovation ``z - phase`` in [-1/2, 1/2) and its variance ``S``."""
-    return float(wrap(float(z) - float(x[0]))), float(P[0, 0]) + float(r)
+    return float(wrap(float(z) - x.item(0))), P.item(0, 0) + float(r)
 
 
 def kalman_update(x: np.ndarray, P: np.ndarray, z: float, r: float
@@ -177,18 +177,18 @@ def kalman_update(x: np.ndarray, P: np.ndarray, z: float, r: float
     if not s > 0:
         return x, P
     if len(x) == 2:
-        p00, p01, p11 = float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
+        p00, p01, p11 = P.item(0, 0), P.item(0, 1), P.item(1, 1)
         k0, k1 = p00 / s, p01 / s
         a, c = 1.0 - k0, -k1
         n00 = a * a * p00 + k0 * k0 * r
         n01 = a * (c * p00 + p01) + k0 * k1 * r
         n11 = c * c * p00 + 2 * c * p01 + p11 + k1 * k1 * r
-        return (np.array([(float(x[0]) + k0 * nu) % 1.0, float(x[1]) + k1 * nu]),
+        return (np.array([(x.item(0) + k0 * nu) % 1.0, x.item(1) + k1 * nu]),
                 np.array([[n00, n01], [n01, n11]]))
     if len(x) == 3:
         # (I - K H) P (I - K H)^T + K r K^T written out: entry (i, j) is
         # p_ij - k_i p_0j - (p_i0 - k_i p_00) k_j + r k_i k_j
-        p = [[float(v) for v in row] for row in P]
+        p = P.tolist()
         k = [p[0][0] / s, p[1][0] / s, p[2][0] / s]
         col = [p[i][0] - k[i] * p[0][0] for i in range(3)]
         m = [[p[i][j] - k[i] * p[0][j] - col[i] * k[j] + r * k[i] * k[j] for j in range(3)]
@@ -196,8 +196,8 @@ def kalman_update(x: np.ndarray, P: np.ndarray, z: float, r: float
         for i in range(3):
             for j in range(i):
                 m[i][j] = m[j][i] = 0.5 * (m[i][j] + m[j][i])
-        return (np.array([(float(x[0]) + k[0] * nu) % 1.0, float(x[1]) + k[1] * nu,
-                          float(x[2]) + k[2] * nu]), np.array(m))
+        return (np.array([(x.item(0) + k[0] * nu) % 1.0, x.item(1) + k[1] * nu,
+                          x.item(2) + k[2] * nu]), np.array(m))
     K = P[:, 0] / s
     # (I - K H) P (I - K H)^T + K r K^T with H = [1, 0, ...]
     A = np.eye(len(x))
@@ -452,7 +452,7 @@ class Tracker:
         if self.x is None or self.fx is None:
             return 0.0, math.inf
         assert self.fP is not None   # set with fx
-        return float(self.fx[2]), math.sqrt(max(float(self.fP[2, 2]), 0.0))
+        return self.fx.item(2), math.sqrt(max(self.fP.item(2, 2), 0.0))
 
     @property
     def follower_weight(self) -> float:
@@ -474,9 +474,9 @@ class Tracker:
             return float("nan"), float("nan")
         if self.follower_weight > 0.5:
             assert self.fx is not None and self.fP is not None   # a weight needs a follower
-            return float(self.fx[1]), math.sqrt(max(float(self.fP[1, 1]), 0.0))
+            return self.fx.item(1), math.sqrt(max(self.fP.item(1, 1), 0.0))
         assert self.P is not None   # set with x
-        return float(self.x[1]), math.sqrt(max(float(self.P[1, 1]), 0.0))
+        return self.x.item(1), math.sqrt(max(self.P.item(1, 1), 0.0))
 
     @property
     def rate_now(self) -> tuple[float, float]:
@@ -487,8 +487,8 @@ class Tracker:
             return float("nan"), float("nan")
         if self.fx is None or self.fP is None:
             assert self.P is not None
-            return float(self.x[1]), math.sqrt(max(float(self.P[1, 1]), 0.0))
-        return float(self.fx[1]), math.sqrt(max(float(self.fP[1, 1]), 0.0))
+            return self.x.item(1), math.sqrt(max(self.P.item(1, 1), 0.0))
+        return self.fx.item(1), math.sqrt(max(self.fP.item(1, 1), 0.0))
 
     def limit_rate(self, bound: float) -> bool:
         """Set :attr:`rate_bound` (cycles per pulse) and give up a track faster than it by
@@ -499,7 +499,7 @@ class Tracker:
         self.rate_bound = bound
         if self.x is None or self.P is None or not math.isfinite(bound):
             return False
-        if abs(float(self.x[1])) - 2.0 * math.sqrt(max(float(self.P[1, 1]), 0.0)) <= bound:
+        if abs(self.x.item(1)) - 2.0 * math.sqrt(max(self.P.item(1, 1), 0.0)) <= bound:
             return False
         self.x = self.P = self.fx = self.fP = None
         self.outlier_run = 0
@@ -513,7 +513,7 @@ class Tracker:
         lagging the fan's."""
         if self.fP is not None and self.settings.max_accel > 0:
             v = self.settings.max_accel ** 2
-            if float(self.fP[2, 2]) < v:
+            if self.fP.item(2, 2) < v:
                 self.fP = self.fP.copy()
                 self.fP[2, 2] = v
 
@@ -525,9 +525,9 @@ class Tracker:
         if self.fx is None or not self.settings.max_accel > 0:
             return
         lim = ACCEL_LIMIT * self.settings.max_accel
-        if abs(float(self.fx[2])) > lim:
+        if abs(self.fx.item(2)) > lim:
             self.fx = self.fx.copy()
-            self.fx[2] = math.copysign(lim, float(self.fx[2]))
+            self.fx[2] = math.copysign(lim, self.fx.item(2))
 
     def _coasts(self, k: int, quality: float) -> bool:
         """Whether a weak match (under ``COAST_BELOW``) at pulse ``k`` is passed over rather
@@ -546,13 +546,13 @@ class Tracker:
         if quality >= COAST_BELOW or st.coast_max <= 0 or self.clear_credit < COAST_STREAK:
             return False
         assert self.x is not None
-        if abs(float(self.x[1])) < st.coast_min_rate:
+        if abs(self.x.item(1)) < st.coast_min_rate:
             # a track slower than the floor claims no direction, and near rest a blade
             # standing at a blind angle is the stop a coast must not hide; a follower
             # coasting there would carry a spin-down's deceleration through zero, to a
             # line the other way
             return False
-        period = 1.0 / max(abs(float(self.x[1])), 1e-9)
+        period = 1.0 / max(abs(self.x.item(1)), 1e-9)
         return self.clear_k is not None and \
             k - self.clear_k <= min(COAST_SHARE * period, st.coast_max)
 
@@ -566,7 +566,7 @@ class Tracker:
         stale, and reported it would renew the old direction and cut the wait for the
         reversal short (a reversal read as a stop and a start)."""
         if self.fx is not None and self.x is not None \
-                and float(self.fx[1]) * float(self.x[1]) < 0.0:
+                and self.fx.item(1) * self.x.item(1) < 0.0:
             self.fx = self.fx.copy()
             self.fx[1] = self.fx[2] = 0.0
 
@@ -604,7 +604,7 @@ class Tracker:
         if st.q_accel <= 0 or self.x is None:
             self.fx = self.fP = None
             return
-        self.fx = np.array([float(self.x[0]), float(self.x[1]), 0.0])
+        self.fx = np.array([self.x.item(0), self.x.item(1), 0.0])
         P = np.zeros((3, 3))
         P[:2, :2] = self.P
         P[2, 2] = st.max_accel ** 2
@@ -622,7 +622,7 @@ class Tracker:
             return
         k, z, q = (np.array(v, dtype=np.float64) for v in zip(*self._recent, strict=True))
         var = np.array([self.r(qq) for qq in q])
-        got = curved_start(k, z, var, float(self.x[1]), float(self.x[0]), st.max_accel)
+        got = curved_start(k, z, var, self.x.item(1), self.x.item(0), st.max_accel)
         if got is None:
             return
         self.fx, self.fP = got
@@ -714,7 +714,7 @@ class Tracker:
             return False
         k, rate, phase, coh = self._fit()
         span = max(float(k[-1] - k[0]), 1.0)
-        if coh < st.min_coherence or abs(rate - float(self.x[1])) <= 1.0 / span:
+        if coh < st.min_coherence or abs(rate - self.x.item(1)) <= 1.0 / span:
             return False
         if aliases is not None and len(aliases) and \
                 float(np.min(np.abs(np.asarray(aliases) - rate))) <= 1.0 / span:
@@ -772,8 +772,8 @@ class Tracker:
             return TrackState(int(k), float(z), float(quality), float("nan"), float("nan"),
                               float("nan"), False, outlier, self.coherence)
         assert self.P is not None   # set with x
-        return TrackState(int(k), float(z), float(quality), float(self.x[0]), float(self.x[1]),
-                          math.sqrt(max(float(self.P[1, 1]), 0.0)), True, outlier,
+        return TrackState(int(k), float(z), float(quality), self.x.item(0), self.x.item(1),
+                          math.sqrt(max(self.P.item(1, 1), 0.0)), True, outlier,
                           self.coherence)
 
     def _measure(self, k: int, z: float, quality: float) -> bool:
@@ -784,7 +784,7 @@ class Tracker:
         clear = quality >= st.min_info
         r = self.r(quality)
         nu, s = innovation(self.x, self.P, z, r)
-        slew = st.max_rate + 3.0 * math.sqrt(max(float(self.P[1, 1]), 0.0))
+        slew = st.max_rate + 3.0 * math.sqrt(max(self.P.item(1, 1), 0.0))
         # the follower's innovation, once: a sync below changes the track, not the follower
         f = innovation(self.fx, self.fP, z, r) \
             if self.fx is not None and self.fP is not None else None
@@ -798,7 +798,7 @@ class Tracker:
             # follower's line instead of counting the match out (a run of such outliers
             # would give the track, and the follower with it, up in mid-ramp)
             assert self.fx is not None and self.fP is not None
-            self.x = np.array([float(self.fx[0]), float(self.fx[1])])
+            self.x = np.array([self.fx.item(0), self.fx.item(1)])
             self.P = 0.5 * (self.fP[:2, :2] + self.fP[:2, :2].T)
             self.syncs += 1
             nu, s = innovation(self.x, self.P, z, r)
