@@ -17,7 +17,7 @@ from typing import Any, TypedDict
 
 import numpy as np
 
-from .config import Config
+from .config import AnalysisSettings, Config
 from .dsp import aliasing
 from .dsp import device as dev
 from .dsp import fingerprint as fp
@@ -228,7 +228,7 @@ def _fold_warning(cfg: Config, gate: Gate, target: float | None) -> list[str]:
 
 
 def _low_band_period(pulses: np.ndarray, valid: np.ndarray, index: np.ndarray,
-                     a: Any) -> PeriodEstimate | None:
+                     a: AnalysisSettings) -> PeriodEstimate | None:
     """The blade period of the gated pulses below TARGET_BAND of Nyquist (None: no line
     there): the band where the drift's interpolation error is not."""
     low = band_limited(pulses[valid], TARGET_BAND)
