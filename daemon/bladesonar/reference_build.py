@@ -227,23 +227,64 @@ def _fold_warning(cfg: Config, gate: Gate, target: float | None) -> list[str]:
             "device nearer the fan"]
 
 
-def _low_band_period(pulses: np.ndarray, valid: np.ndarray, index: np.ndarray,
-                     a: AnalysisSettings) -> PeriodEstimate | None:
-    """The blade period of the gated pulses below TARGET_BAND of Nyquist (None: no line
-    there): the band where the drift's interpolation error is not."""
-    low = band_limited(pulses[valid], TARGET_BAND)
-    mean = low.mean(axis=0)
-    feats = fp.envelope_features(low, mean, kind=a.features, smooth=a.envelope_smooth)
-    y = np.zeros_like(pulses)
-    y[valid] = low - mean
-    f_all = np.zeros((len(pulses), feats.shape[1]))
+def _period(xv: np.ndarray, valid: np.ndarray, index: np.ndarray, a: AnalysisSettings
+            ) -> tuple[PeriodEstimate, np.ndarray, np.ndarray]:
+    """The blade period of the valid gated pulses ``xv`` (rows ``valid`` of ``index``),
+    with their mean and envelope features; raises EstimationError."""
+    mean = xv.mean(axis=0)
+    feats = fp.envelope_features(xv, mean, kind=a.features, smooth=a.envelope_smooth)
+    y = np.zeros((len(valid), xv.shape[1]))
+    y[valid] = xv - mean
+    f_all = np.zeros((len(valid), feats.shape[1]))
     f_all[valid] = feats - feats.mean(axis=0)
+    est = estimate_period(y, index, features=f_all, min_periods=a.min_periods,
+                          max_cycles_per_pulse=a.max_phase_per_pulse,
+                          line_snr_min=a.line_snr_min)
+    return est, mean, feats
+
+
+def _off_the_drift(est: PeriodEstimate, xv: np.ndarray, valid: np.ndarray,
+                   index: np.ndarray, cfg: Config, period: float, span: int
+                   ) -> tuple[PeriodEstimate, list[str]]:
+    """The period estimate, and a warning, when the rate found lies on the clock drift's
+    sub-sample cycle (``period``: the aligner's PRI in capture samples). That cycle's
+    pattern (the alignment's interpolation error on strong static echoes) lives at the
+    top of the band, a fan's echoes across it, so the band below TARGET_BAND decides:
+    the same line there is the fan's (a fan may turn there by chance: a held-out room's
+    at 0.639 Hz, 29 ppm); another line is the fan's, hidden above by the drift's (3-D
+    tuning scene 8: 3.54 Hz learned for a fan at 0.264 Hz, which the low band gives);
+    none leaves the reference with a warning."""
+    r = est.cycles_per_pulse
+    h = drift_harmonic(r, period, span)
+    if h is None:
+        return est, []
     try:
-        return estimate_period(y, index, features=f_all, min_periods=a.min_periods,
-                               max_cycles_per_pulse=a.max_phase_per_pulse,
-                               line_snr_min=a.line_snr_min)
+        low: PeriodEstimate | None = _period(band_limited(xv, TARGET_BAND), valid, index,
+                                             cfg.analysis)[0]
     except EstimationError:
-        return None
+        low = None
+    if low is not None and abs(low.cycles_per_pulse - r) <= 1.0 / span:
+        return est, []
+    prf, blades = cfg.prf_hz, cfg.scene.blades
+    ppm = (period / cfg.waveform.pri_samples - 1.0) * 1e6
+    on = f"{'on' if h == 1 else f'at {h} times'} the cycle of the pulses' sub-sample " \
+         f"position under this device's clock drift ({sub_sample_cycle(period):.5f} per " \
+         f"pulse, {ppm:+.0f} ppm)"
+    hz = r * prf / blades
+    if low is not None:
+        return low, [
+            f"the strongest pattern ({hz:.3f} Hz) turned {on}: the alignment's error on "
+            f"strong static echoes, not the fan; the rate is taken from the band below "
+            f"{TARGET_BAND:g} of Nyquist, where the drift's pattern is not "
+            f"({low.cycles_per_pulse * prf / blades:.3f} Hz). A place where the device "
+            f"sees the blades better makes the fan's echoes stronger"]
+    return est, [
+        f"the pattern found turns {r:.5f} blade periods per pulse ({hz:.3f} Hz), {on}, "
+        f"and the band below {TARGET_BAND:g} of Nyquist shows no pattern: if the fan "
+        f"does not turn at {hz:.3f} Hz, the pattern is the alignment's interpolation "
+        f"error on strong static echoes and the fan's echoes are too weak from here: "
+        f"place the device where it sees the blades better (nearer the fan, 0.5-2 m off "
+        f"its axis, nothing between)"]
 
 
 def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> Reference:
@@ -289,50 +330,11 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     pulses = full.pulses[:, gate.start:gate.stop]
     k = full.index[v]
     xv = pulses[v]
-    mean_pulse = xv.mean(axis=0)
-    feats = fp.envelope_features(xv, mean_pulse, kind=a.features, smooth=a.envelope_smooth)
-    y = np.zeros_like(pulses)
-    y[v] = xv - mean_pulse
-    f_all = np.zeros_like(pulses)
-    f_all[v] = feats - feats.mean(axis=0)
-    est = estimate_period(y, full.index, features=f_all, min_periods=a.min_periods,
-                          max_cycles_per_pulse=a.max_phase_per_pulse,
-                          line_snr_min=a.line_snr_min)
-    r = est.cycles_per_pulse
+    est, mean_pulse, feats = _period(xv, v, full.index, a)
     span = int(k[-1] - k[0]) + 1 if len(k) else 0
-    h = drift_harmonic(r, aligner.period, span)
-    if h is not None:
-        # the rate lies on the drift's sub-sample cycle: its pattern (the alignment's
-        # interpolation error on strong static echoes) lives at the top of the band, a
-        # fan's echoes across it. The band below TARGET_BAND decides: the same line there
-        # is the fan's (a fan may turn there by chance: a held-out room's at 0.639 Hz,
-        # 29 ppm); another line is the fan's, hidden above by the drift's (3-D tuning
-        # scene 8: 3.54 Hz learned for a fan at 0.264 Hz, which the low band gives);
-        # none leaves the reference with a warning
-        low = _low_band_period(pulses, v, full.index, a)
-        ppm = (aligner.period / pri - 1.0) * 1e6
-        cyc = sub_sample_cycle(aligner.period)
-        hz = r * prf / cfg.scene.blades
-        if low is not None and abs(low.cycles_per_pulse - r) > 1.0 / span:
-            warnings.append(
-                f"the strongest pattern ({hz:.3f} Hz) turned {'on' if h == 1 else f'at {h} times'} "
-                f"the cycle of the pulses' sub-sample position under this device's clock "
-                f"drift ({cyc:.5f} per pulse, {ppm:+.0f} ppm): the alignment's error on "
-                f"strong static echoes, not the fan; the rate is taken from the band below "
-                f"{TARGET_BAND:g} of Nyquist, where the fan's echoes are weak but the "
-                f"drift's are not ({low.cycles_per_pulse * prf / cfg.scene.blades:.3f} Hz). "
-                f"A place where the device sees the blades better makes them stronger")
-            est, r = low, low.cycles_per_pulse
-        elif low is None:
-            warnings.append(
-                f"the pattern found turns {r:.5f} blade periods per pulse ({hz:.3f} Hz), "
-                f"{'on' if h == 1 else f'at {h} times'} the cycle of the pulses' sub-sample "
-                f"position under this device's clock drift ({cyc:.5f} per pulse, "
-                f"{ppm:+.0f} ppm), and the band below {TARGET_BAND:g} of Nyquist shows no "
-                f"pattern: if the fan does not turn at {hz:.3f} Hz, the pattern is the "
-                f"alignment's interpolation error on strong static echoes and the fan's "
-                f"echoes are too weak from here: place the device where it sees the blades "
-                f"better (nearer the fan, 0.5-2 m off its axis, nothing between)")
+    est, drift_words = _off_the_drift(est, xv, v, full.index, cfg, aligner.period, span)
+    warnings.extend(drift_words)
+    r = est.cycles_per_pulse
     folded = aliasing.folded_angles(r, span)
     if folded is not None:
         p, q = folded.numerator, folded.denominator
