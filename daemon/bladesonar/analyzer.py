@@ -400,9 +400,7 @@ class PulseAnalyzer:
         self.motion = MotionMeter(self.ref.table.shape[1], self.window,
                                   max_lag=max(4, min(lags, self.window // 2)))
         # lags that cannot reach one blade period at the reference rate never see a moving
-        # pattern recur and read it as no change (simulated corner sensor, 1 s windows: a
-        # fan at the reference rate called stopped in 39 of 120 trials): such a window
-        # gives no stopped verdict
+        # pattern recur and read it as no change: such a window gives no stopped verdict
         self._lags_short = self.motion.max_lag < math.ceil(1.2 / self.ref.cycles_per_pulse)
         # the fan coming to rest must show within seconds: a short meter on envelope
         # features of the pulses minus a slow static estimate (the 3 s one adapts to a
@@ -770,13 +768,11 @@ class PulseAnalyzer:
     def _recheck_track(self) -> None:
         """A track the good matches mostly reject is given up for a line that fits them
         (:meth:`Tracker.recheck`); near p/q cycles per pulse only for a line that is not
-        one of its aliases, among which the alias check chooses (a spin-up that locked on
-        a spurious line near 3/14 stayed `unknown` for 1.8 s). Not a track the alias watch
-        has verified (it followed a ramp, or a steady rate near no p/q, over seconds): the
-        re-check is for a lock taken on a wrong line, and at the edge of a slow fan's
-        blind half-period the matcher jumps to the mirror angle at high quality often
-        enough to outweigh the clear matches a right track accepts (a line at 1.3 Hz
-        replaced one right at 0.24 Hz for 90 s)."""
+        one of its aliases, among which the alias check chooses. Not a track the alias
+        watch has verified (it followed a ramp, or a steady rate near no p/q, over
+        seconds): the re-check is for a lock taken on a wrong line, and at the edge of a
+        slow fan's blind half-period the matcher jumps to the mirror angle at high
+        quality often enough to outweigh the clear matches a right track accepts."""
         tr = self.tracker
         if not tr.locked or self.aliases.verified == tr.identity:
             return

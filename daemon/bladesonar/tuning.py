@@ -84,8 +84,9 @@ ACCEL_NOISE = 0.4
 #: fan's blind half-period, 1.1 s at 0.15 Hz in the paper room, with room to spare.
 COAST_MAX_S = 2.0
 #: The slowest track that coasts, in multiples of tracking.rate_floor_hz
-#: (dsp.tracking.Tracker._coasts). One floor: at two (the rate a new direction needs) a
-#: start's first slow tracks could not coast, and a simulated hour got a false start.
+#: (dsp.tracking.Tracker._coasts). One floor, not two (the rate a new direction needs):
+#: a start's first slow tracks must coast too (docs/dynamics.md, "Why each rule is
+#: there").
 COAST_MIN_FLOORS = 1.0
 
 
