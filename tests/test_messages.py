@@ -6,6 +6,8 @@ import datetime as dt
 import json
 import math
 import re
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import pytest
@@ -105,6 +107,28 @@ def test_state_payload_from_a_live_estimate():
         "airflow_confidence": None, "window_s": 4.0,
         "reference": "0123456789ab", "status": "ok",
         "reason": "relative rate -0.7007 +- 0.0208", "time": "2023-11-14T22:13:20.250+00:00"}
+
+
+def test_state_payload_keys_are_its_typed_dicts():
+    """Every state payload the messages make has the keys StatePayload declares, each
+    required one always, an optional one only where the state has it, in the published
+    order (STATE_KEYS, then the optional ones, then time); a key added to the payload
+    and not to the TypedDict (or the other way) fails here."""
+    declared = M.StatePayload.__annotations__
+    required, optional = M.StatePayload.__required_keys__, M.StatePayload.__optional_keys__
+    assert [k for k in declared if k in required] == [*M.STATE_KEYS, "time"]
+    assert set(optional) == {"detail", "reason", "warnings"}
+    warned = Estimate.from_decision(
+        Decision(Direction.SAME, "cw", 0.5, 0.2, 12.0, 0.9, "r", warnings=("w",)),
+        window_s=4.0, reference="ab")
+    for p in (M.state_payload(live_estimate(), t=T0, running=True),
+              M.state_payload(Estimate.unknown("learning"), t=T0, status="learning",
+                              detail="recording"),
+              M.state_payload(warned, t=T0), M.state_payload(None, t=T0)):
+        assert required <= set(p) <= set(declared), set(p) ^ set(declared)
+        extras = [k for k in p if k in optional]
+        assert list(p) == [*M.STATE_KEYS, *extras, "time"]
+        assert extras == sorted(extras, key=["detail", "reason", "warnings"].index)
 
 
 def test_state_payload_carries_the_live_airflow():
@@ -491,7 +515,7 @@ def test_retiring_clears_the_device_and_the_retained_topics():
 # -- the templates, rendered by Jinja2 (Home Assistant's template engine) ---------------
 
 
-def render(template: str, payload: dict) -> str:
+def render(template: str, payload: Mapping[str, Any]) -> str:
     """What Home Assistant computes from a message: its templates are Jinja2 in a
     sandbox, with ``value_json`` the decoded payload."""
     pytest.importorskip("jinja2")
@@ -502,7 +526,7 @@ def render(template: str, payload: dict) -> str:
                                             value=M.dumps(payload)).strip()
 
 
-def states_of(payload: dict, topic_key: str) -> dict[str, str]:
+def states_of(payload: Mapping[str, Any], topic_key: str) -> dict[str, str]:
     t = M.Topics.for_config(cfg_with())
     topic = getattr(t, topic_key)
     return {k[1]: render(c["value_template"], payload) for k, c in configs().items()

@@ -891,7 +891,7 @@ def test_stream_time_is_scored_at_the_fans_time(scene):
 
 
 def test_a_speed_published_briefly_bounds_new_lines_at_a_multiple_of_itself(reference):
-    """Closed forms of the bound on new lines (PulseAnalyzer._bound_rate, in Hz): a speed
+    """Closed forms of the bound on new lines (analyzer.RateBound, in Hz): a speed
     published for ANCHOR_TRUST_S (2 s) bounds at itself plus twice the steepest ramp
     (0.3 Hz/s) over the time since plus twice the floor (0.1 Hz); one just published
     (possibly a first answer on a wrong line, 1.8 times too slow) at UNTRUSTED_FACTOR
@@ -906,7 +906,7 @@ def test_a_speed_published_briefly_bounds_new_lines_at_a_multiple_of_itself(refe
     hz = float(reference.meta["rate_hz"]) / reference.cycles_per_pulse
 
     def bound_at(t):
-        an._bound_rate(t)
+        an.rate_bound.step(t, an.state, an.tracker)
         return an.tracker.rate_bound * hz
 
     an.state = _d("same", 0.09)
@@ -1019,3 +1019,37 @@ def test_weak_answers_at_the_same_speed_keep_a_fan_from_reversing_at_once():
     assert fired == [] and tr.known == Kind.SAME and set(published[380:]) == {"unknown"}
     fired, _, _ = _walk(same + [weak(1.1)] * 340 + other)
     assert fired == [("reversed", 380 + 16)]
+
+
+def test_each_hold_names_its_rule():
+    """Closed-form walks (34 pulses/s, confirm 17 pulses, 0.3 Hz/s, floor 0.05 Hz): every
+    decision published as unknown names the rule of Transitions.step that held it
+    (``Transitions.hold``), and one published as it came names none. 'same' at 0.21 Hz
+    is confirmed at its 17th answer; a stop 1.7 s into it waits for a reversal out of
+    view (0.21 Hz could reach zero within an eighth of a turn at 0.3 Hz/s); one 'same'
+    amid that stop's confirmation is a lone answer; the other way at once on a line not
+    shown to beat its mirror is the mirror image, on one that has, sooner than a fan
+    reverses (0.41 / 0.3 = 1.37 s); 0.05 Hz is too slow for a new direction (0.1 Hz)."""
+    from bladesonar.transitions import Hold
+
+    def walk(seq):
+        tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.3,
+                                            reversal_hold_s=1.0), 34.0)
+        holds = []
+        for i, d in enumerate(seq):
+            out, _ = tr.step(i / 34.0, i, d)
+            holds.append(tr.hold)
+            assert (tr.hold is None) == (out.direction == d.direction), (i, tr.hold, out)
+            assert tr.state.hold == tr.hold and tr.state.known == tr.known
+        return holds, tr
+
+    same = [_d("same", 0.21)] * 60
+    holds, tr = walk(same + [_d("stopped")] * 5 + [_d("same", 0.21)])
+    assert holds[:16] == [Hold.CONFIRMING] * 16 and holds[16:60] == [None] * 44
+    assert holds[60:65] == [Hold.REVERSAL_UNDER_WAY] * 5
+    assert holds[65] == Hold.LONE_ANSWER and tr.state.candidate == Kind.STOPPED
+    holds, _ = walk(same + [_d("reversed", 0.2, checked=False)] * 3)
+    assert holds[60:] == [Hold.MIRROR_IMAGE] * 3
+    holds, tr = walk(same + [_d("reversed", 0.2)] * 3 + [_d("reversed", 0.05)])
+    assert holds[60:63] == [Hold.TOO_SOON] * 3 and holds[63] == Hold.SLOW_NEW_DIRECTION
+    assert tr.known == Kind.SAME

@@ -16,6 +16,7 @@ from __future__ import annotations
 import copy
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -82,7 +83,7 @@ class StaticRemover:
         #: device's gain wander: an AGC; elsewhere it would only add the fan's share of
         #: the projection as jitter on the strong static echoes)
         self.normalise = False
-        #: hold the estimate (a fan at rest: see PulseAnalyzer._hold_static)
+        #: hold the estimate (a fan at rest: see RestHold)
         self.frozen = False
         #: (pulse, estimate after it) every SNAPSHOT_EVERY pulses, the last SNAPSHOTS
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=SNAPSHOTS)
@@ -230,6 +231,96 @@ def _rows_of(block: AlignedPulses, keep: np.ndarray) -> AlignedPulses:
                          block.status[keep])
 
 
+class RestHold:
+    """While the fan rests, the static estimate is the room as it was while the fan
+    turned (its echo averaged over angles), held. Left to adapt it takes in the echo of
+    the blade at rest, and that adapting itself reads as motion, and when the fan starts
+    the rest echo stays in every residual as a ghost at the rest angle. Held, a resting
+    blade leaves the residual a turning one leaves at that angle, and the track follows
+    it from rest when the fan starts (docs/dynamics.md, "Why each rule is there").
+
+    Held from the first 'stopped' decision after the fan was seen turning at
+    ``turning_hz`` (three times the floor) or more (the copy of the estimate from then)
+    until it is seen turning at that rate again, either way or with its direction in
+    doubt (a weak answer in the old direction from a spurious line near rest does not
+    count), but no longer than ``max_pulses`` (HOLD_S): over a long rest the room itself
+    drifts, and an old estimate would leave that drift in every residual.
+    """
+
+    def __init__(self, turning_hz: float, max_pulses: float) -> None:
+        self.turning_hz = turning_hz
+        self.max_pulses = max_pulses
+        #: the last pulse at which the fan was seen turning at ``turning_hz`` or more
+        self._turning_k: int | None = None
+        self._held_k = 0                     # the pulse the hold began
+
+    def step(self, k: int, state: Decision, d: Decision, static: StaticRemover) -> bool:
+        """After the decision ``d`` at pulse ``k`` and the state published from it: hold
+        or release ``static``. True when its estimate changed."""
+        turning = (state.direction in WAYS or state.turning) \
+            and (state.rate_hz or 0.0) >= self.turning_hz
+        if turning:
+            self._turning_k = k
+        if not static.frozen:
+            if d.direction == Direction.STOPPED and self._turning_k is not None:
+                held = [m for j, m in static.history if j <= self._turning_k]
+                if held:
+                    static.mean[:] = held[-1]
+                    static.frozen = True
+                    self._held_k = k
+                    return True
+        elif turning or k - self._held_k > self.max_pulses:
+            static.frozen = False
+            self._turning_k = None          # not held again before the fan turns again
+            return True
+        return False
+
+
+class RateBound:
+    """A fan seen at rest or turning at some speed cannot be turning much faster a moment
+    later: a new line of the tracker (a lock, a re-check, an alias move) may not be
+    faster than that speed plus twice the steepest ramp over the time since, plus twice
+    the floor. Near rest the matches barely change, and a slow fan's matches jump to the
+    mirror angle in its blind half-period: without the bound the tracker takes lines at
+    alias rates (docs/dynamics.md, "Why each rule is there").
+
+    A speed above three times the floor bounds only once it has been published for
+    ANCHOR_TRUST_S (a first answer may be on a wrong line, and would keep out the right
+    one); until then it bounds at UNTRUSTED_FACTOR times itself.
+    """
+
+    def __init__(self, floor_hz: float, max_ramp_hz_s: float,
+                 cycles_per_pulse: Callable[[float], float]) -> None:
+        self.floor_hz = floor_hz
+        self.max_ramp_hz_s = max_ramp_hz_s
+        self._cycles = cycles_per_pulse      # Hz -> the tracker's cycles per pulse
+        #: (time, rate in Hz) of the last known state published, trusted
+        self._anchor: tuple[float, float] | None = None
+        self._untrusted: tuple[float, float] | None = None   # (t, UNTRUSTED_FACTOR x speed)
+        self._known_dir: Direction | None = None   # the published direction, and since when
+        self._known_t = 0.0
+
+    def step(self, t_s: float, state: Decision | None, tracker: Tracker) -> None:
+        """After the state ``state`` published at ``t_s``: the tracker's bound on rates."""
+        st = state
+        if st is None or st.direction != self._known_dir:
+            self._known_dir = None if st is None else st.direction
+            self._known_t = t_s
+        if st is not None and st.direction in (*WAYS, Direction.STOPPED):
+            v = float(st.rate_hz or 0.0)
+            if v <= 3.0 * self.floor_hz or t_s - self._known_t >= ANCHOR_TRUST_S:
+                self._anchor, self._untrusted = (t_s, v), None
+            else:
+                self._untrusted = (t_s, UNTRUSTED_FACTOR * v)
+        bound = math.inf
+        for got in (self._anchor, self._untrusted):
+            if got is not None:
+                t0, v0 = got
+                bound = min(bound, v0 + 2.0 * self.max_ramp_hz_s * max(t_s - t0, 0.0)
+                            + 2.0 * self.floor_hz)
+        tracker.limit_rate(self._cycles(bound) if math.isfinite(bound) else math.inf)
+
+
 @dataclass
 class PulseAnalyzer:
     """Streaming analysis of aligned pulses (what the daemon runs pulse by pulse).
@@ -288,19 +379,16 @@ class PulseAnalyzer:
     #: carried across one that a jump of unknown length would spoil (_restart_track)
     uncertain_gaps: bool = False
     restarts: int = 0
-    #: the last pulse at which the fan was seen turning at three times the floor or more
-    #: (_hold_static)
-    _turning_k: int | None = None
-    _held_k: int = 0                             # the pulse the hold began
-    #: (time, rate in Hz) of the last known state published (_bound_rate)
-    _anchor: tuple[float, float] | None = None
-    _untrusted: tuple[float, float] | None = None   # (t, UNTRUSTED_FACTOR x speed)
-    _known_dir: Direction | None = None         # the published direction, and since when
-    _known_t: float = 0.0
+    #: the feedback after each step of the state machine (_feed_back)
+    rest_hold: RestHold = field(init=False)
+    rate_bound: RateBound = field(init=False)
 
     def __post_init__(self) -> None:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
         self.transitions = Transitions(transition_settings(self.cfg), self.cfg.prf_hz)
+        c = self.cfg.tracking
+        self.rest_hold = RestHold(3.0 * c.rate_floor_hz, HOLD_S * self.cfg.prf_hz)
+        self.rate_bound = RateBound(c.rate_floor_hz, c.max_ramp_hz_s, self._cycles_per_pulse)
         self._decide_settings = decide_settings(self.cfg)
         self.window = max(int(round(self.cfg.daemon.window_s * self.cfg.prf_hz)), 20)
         self._recent_acc = np.zeros(4 * self.window)
@@ -312,9 +400,7 @@ class PulseAnalyzer:
         self.motion = MotionMeter(self.ref.table.shape[1], self.window,
                                   max_lag=max(4, min(lags, self.window // 2)))
         # lags that cannot reach one blade period at the reference rate never see a moving
-        # pattern recur and read it as no change (simulated corner sensor, 1 s windows: a
-        # fan at the reference rate called stopped in 39 of 120 trials): such a window
-        # gives no stopped verdict
+        # pattern recur and read it as no change: such a window gives no stopped verdict
         self._lags_short = self.motion.max_lag < math.ceil(1.2 / self.ref.cycles_per_pulse)
         # the fan coming to rest must show within seconds: a short meter on envelope
         # features of the pulses minus a slow static estimate (the 3 s one adapts to a
@@ -349,7 +435,7 @@ class PulseAnalyzer:
         daemon, whatever the blocks); optional per-pulse rows carrying the last state.
         Events confirmed in the block are added to ``new_events``."""
         # a block's static removal runs ahead of its pulses' decisions; a decision that
-        # changes the static estimate (_hold_static) rewinds to here, so that the rest of
+        # changes the static estimate (RestHold) rewinds to here, so that the rest of
         # the block is removed with the new estimate, as the daemon's next pulse is
         saved = self._streams() if int(np.count_nonzero(block.valid)) > 1 else None
         prep = self._prepare(block)
@@ -401,14 +487,10 @@ class PulseAnalyzer:
                 self.motion_fed = float(pm.motion[q])
                 d = self.decided = self.decision((self.motion_fed, float(ps.motion[q])))
                 state, fired = self.transitions.step(t_s, k, d, self._since)
-                self.state = self._reported_rate(state)
+                self.state, changed = self._feed_back(k, t_s, d, state)
                 self.state_edge = edge
                 self.new_events.extend(fired)
                 self._since = 0
-                changed = self._hold_static(k, d)
-                self._bound_rate(t_s)
-                if self.static.frozen:
-                    self.tracker.expect_change()     # a fan at rest may start any moment
             if rows:
                 row: dict[str, Any] = {"t_s": round(t_s, 4), "pulse": k,
                        "phase": round(phases[i], 4),
@@ -615,80 +697,25 @@ class PulseAnalyzer:
             return False
         return sum(wi for wi, (acc, _) in zip(w, recent, strict=True) if acc) >= 0.8 * sum(w)
 
-    def _bound_rate(self, t_s: float) -> None:
-        """A fan seen at rest or turning at some speed cannot be turning much faster a
-        moment later: a new line (a lock, a re-check, an alias move) may not be faster
-        than that speed plus twice the steepest ramp over the time since, plus twice the
-        floor. Near rest the matches barely change, and the tracker took lines at 1.8 Hz
-        (3/14 blade period per pulse) that held a stop back by 5 s; a slow fan's matches
-        jump to the mirror angle in its blind half-period, and a track lost there was
-        taken up again at 1.42 Hz from a fan at 0.2 Hz (1.8 s of 'rate ambiguous')."""
-        st = self.state
-        tr, c = self.tracker, self.cfg.tracking
-        if st is None or st.direction != self._known_dir:
-            self._known_dir = None if st is None else st.direction
-            self._known_t = t_s
-        if st is not None and st.direction in (*WAYS, Direction.STOPPED):
-            v = float(st.rate_hz or 0.0)
-            # a speed above three times the floor bounds only once it has been published
-            # for ANCHOR_TRUST_S: a first answer on a wrong line (near 1/16 blade period
-            # per pulse, 0.29 Hz for 0.53 Hz) would otherwise keep out the right one.
-            # Until then it bounds at UNTRUSTED_FACTOR times its speed: just past a
-            # reversal, published at 0.21 Hz, a re-check took a line at 0.92 Hz that
-            # the last trusted speed, 3 s old, let through (2 s of unknown)
-            if v <= 3.0 * c.rate_floor_hz or t_s - self._known_t >= ANCHOR_TRUST_S:
-                self._anchor, self._untrusted = (t_s, v), None
-            else:
-                self._untrusted = (t_s, UNTRUSTED_FACTOR * v)
-        bound = math.inf
-        for got in (self._anchor, self._untrusted):
-            if got is not None:
-                t0, v0 = got
-                bound = min(bound, v0 + 2.0 * c.max_ramp_hz_s * max(t_s - t0, 0.0)
-                            + 2.0 * c.rate_floor_hz)
-        tr.limit_rate(self._cycles_per_pulse(bound) if math.isfinite(bound) else math.inf)
-
     def _cycles_per_pulse(self, hz: float) -> float:
         """A rotation rate in Hz as the tracker's blade cycles per pulse (by the
         reference's own rate and cycles per pulse)."""
         return hz / float(self.ref.meta["rate_hz"]) * self.ref.cycles_per_pulse
 
-    def _hold_static(self, k: int, d: Decision) -> bool:
-        """While the fan rests, the static estimate is the room as it was while the fan
-        turned (its echo averaged over angles), held. Left to adapt it takes in the echo
-        of the blade at rest, and that adapting itself reads as motion: a line of matches
-        at 0.12 Hz from a fan at rest for 0.8 s restarted a stop's confirmation; and when
-        the fan starts again the rest echo stays in every residual as a ghost at the
-        rest angle for seconds, the matches standing still while the fan speeds up
-        (starts came up to 2.7 s after the fan passed 0.15 Hz; held, under 1.3 s). Held,
-        a resting blade leaves the residual a turning one leaves at that angle, and the
-        track follows it from rest when the fan starts.
-
-        Held from the first 'stopped' decision after the fan was seen turning at three
-        times the floor (the copy of the estimate from then) until it is seen turning at
-        that rate again, either way or with its direction in doubt (a weak answer in the
-        old direction from a spurious line near rest does not count), but no longer than
-        HOLD_S: over a long rest the room itself drifts (a few degrees of temperature move
-        its strong static echoes), and an old estimate would leave that drift in every
-        residual. True when the estimate changed."""
-        st = self.state
-        turning = st is not None and (st.direction in WAYS or st.turning) \
-            and (st.rate_hz or 0.0) >= 3.0 * self.cfg.tracking.rate_floor_hz
-        if turning:
-            self._turning_k = k
-        if not self.static.frozen:
-            if d.direction == Direction.STOPPED and self._turning_k is not None:
-                held = [m for j, m in self.static.history if j <= self._turning_k]
-                if held:
-                    self.static.mean[:] = held[-1]
-                    self.static.frozen = True
-                    self._held_k = k
-                    return True
-        elif turning or k - self._held_k > HOLD_S * self.cfg.prf_hz:
-            self.static.frozen = False
-            self._turning_k = None          # not held again before the fan turns again
-            return True
-        return False
+    def _feed_back(self, k: int, t_s: float, d: Decision, state: Decision
+                   ) -> tuple[Decision, bool]:
+        """The one place the answer flows back into the analysis, after each step of the
+        state machine: the published rate (:meth:`_reported_rate`), the static estimate
+        held while the fan rests (:class:`RestHold`), the bound on the tracker's new
+        lines (:class:`RateBound`), and the tracker told that a fan at rest may start any
+        moment. (The state to publish, whether the static estimate changed: the rest of
+        the block is then removed with the new one, :meth:`_redo_rest`.)"""
+        published = self._reported_rate(state)
+        changed = self.rest_hold.step(k, published, d, self.static)
+        self.rate_bound.step(t_s, published, self.tracker)
+        if self.static.frozen:
+            self.tracker.expect_change()     # a fan at rest may start any moment
+        return published, changed
 
     def _reported_rate(self, d: Decision) -> Decision:
         """The rate a turning state reports. The latest rate is the follower's (it
@@ -696,9 +723,8 @@ class PulseAnalyzer:
         its window's mean instead (a wobble of a few per cent averages out), or the
         quieter track's rate before the window is full, but only while that agrees with
         the latest rate within SETTLED_AGREE: at the onset of a ramp both still hold the
-        old speed for a second or more while the follower already has the new one (on
-        simulated days the onsets of ramps were half of the ramp answers more than 10 %
-        off). Only what is published changes: the state machine decides on the
+        old speed for a second or more while the follower already has the new one. Only
+        what is published changes: the state machine decides on the
         decision's own rate (the follower is the livelier of the two, and after a
         spurious lock near rest its rate alone would clear the rate needed for a new
         direction)."""
@@ -720,8 +746,7 @@ class PulseAnalyzer:
         hz = abs(rel) * float(self.ref.meta["rate_hz"])
         if hz < self._decide_settings.rate_floor_hz:
             # a direction is claimed, so the fan turns at least that fast: the latest rate
-            # has drifted under it (simulated days had up to about a second an hour of 'same'
-            # published at 0.03-0.05 Hz); the decision's own rate stands
+            # has drifted under it; the decision's own rate stands
             return d
         return replace(d, relative_rate=rel, rate_hz=hz, rpm=hz * 60.0)
 
@@ -743,13 +768,11 @@ class PulseAnalyzer:
     def _recheck_track(self) -> None:
         """A track the good matches mostly reject is given up for a line that fits them
         (:meth:`Tracker.recheck`); near p/q cycles per pulse only for a line that is not
-        one of its aliases, among which the alias check chooses (a spin-up that locked on
-        a spurious line near 3/14 stayed `unknown` for 1.8 s). Not a track the alias watch
-        has verified (it followed a ramp, or a steady rate near no p/q, over seconds): the
-        re-check is for a lock taken on a wrong line, and at the edge of a slow fan's
-        blind half-period the matcher jumps to the mirror angle at high quality often
-        enough to outweigh the clear matches a right track accepts (a line at 1.3 Hz
-        replaced one right at 0.24 Hz for 90 s)."""
+        one of its aliases, among which the alias check chooses. Not a track the alias
+        watch has verified (it followed a ramp, or a steady rate near no p/q, over
+        seconds): the re-check is for a lock taken on a wrong line, and at the edge of a
+        slow fan's blind half-period the matcher jumps to the mirror angle at high
+        quality often enough to outweigh the clear matches a right track accepts."""
         tr = self.tracker
         if not tr.locked or self.aliases.verified == tr.identity:
             return

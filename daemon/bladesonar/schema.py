@@ -62,7 +62,8 @@ def base_type(f: dataclasses.Field[Any]) -> type | None:
     return None
 
 
-def check_value(key: str, f: dataclasses.Field[Any], value: Any, lines: Mapping[str, int],
+def check_value(key: str, f: dataclasses.Field[Any], value: Any,  # noqa: C901  one case a type
+                lines: Mapping[str, int],
                 source: str | None) -> Any:
     """``value`` of the field ``f`` at dotted ``key`` checked against its declaration;
     returns it as its type (an integral float as an int, an int as a float)."""

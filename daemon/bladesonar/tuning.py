@@ -47,16 +47,16 @@ SETTLED_AGREE = 0.03
 
 #: Pulses between the copies of the static estimate kept for a fan that comes to rest,
 #: and how many are kept (12 s: a spin-down's last seconds above three times the floor
-#: lie up to about 8 s before its stop is confirmed) (PulseAnalyzer._hold_static).
+#: lie up to about 8 s before its stop is confirmed) (analyzer.RestHold).
 SNAPSHOT_EVERY = 17
 SNAPSHOTS = 24
-#: Longest hold of the static estimate while the fan rests, s (_hold_static).
+#: Longest hold of the static estimate while the fan rests, s (RestHold).
 HOLD_S = 600.0
 #: How long a turning state must have been published before its speed bounds new lines,
-#: s (_bound_rate).
+#: s (analyzer.RateBound).
 ANCHOR_TRUST_S = 2.0
 #: How many times its speed a turning state published for less than ANCHOR_TRUST_S may
-#: be off (_bound_rate): the wrong first answer above was 1.8 times too slow.
+#: be off (RateBound): the wrong first answer above was 1.8 times too slow.
 UNTRUSTED_FACTOR = 2.5
 
 #: Largest range scale (c now / c at the reference) followed by rescaling: beyond it
@@ -84,8 +84,9 @@ ACCEL_NOISE = 0.4
 #: fan's blind half-period, 1.1 s at 0.15 Hz in the paper room, with room to spare.
 COAST_MAX_S = 2.0
 #: The slowest track that coasts, in multiples of tracking.rate_floor_hz
-#: (dsp.tracking.Tracker._coasts). One floor: at two (the rate a new direction needs) a
-#: start's first slow tracks could not coast, and a simulated hour got a false start.
+#: (dsp.tracking.Tracker._coasts). One floor, not two (the rate a new direction needs):
+#: a start's first slow tracks must coast too (docs/dynamics.md, "Why each rule is
+#: there").
 COAST_MIN_FLOORS = 1.0
 
 

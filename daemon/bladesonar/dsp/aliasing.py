@@ -487,7 +487,7 @@ class AliasWatch:
         keep = k >= (tr.start_k if tr.start_k is not None else k[0])
         return idx[keep], k[keep]
 
-    def _check_mirror(self, tr: Tracker) -> bool:
+    def _check_mirror(self, tr: Tracker) -> bool:  # noqa: C901  one check's life in order
         """Ask whether the track's path fits the table clearly better than its mirror
         image (:func:`mirror_evidence`): every 8 pulses until it has, then every quarter
         window. Clearly worse twice: the track is moved to the mirror line. Neither over

@@ -359,8 +359,8 @@ class DecideSettings:
     #: static echo energy (the running mean pulse) over the noise energy of one pulse
     #: below which the gate holds nothing but noise. Noise alone gives about the mean's
     #: noise share, 1 / (effective pulses averaged), 0.005-0.01 with the 3 s static
-    #: window; a fan at rest at 10 dB about 0.4 (the old 4.0 asked the static echo to
-    #: stand 6 dB over the noise of a single pulse, and a fan at rest read as noise)
+    #: window; a fan at rest at 10 dB about 0.4 (docs/dynamics.md, "Why each rule is
+    #: there")
     scene_threshold: float = 0.1
     min_confidence: float = 0.5
     slew_limit: float = 4.0

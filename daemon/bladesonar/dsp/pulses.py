@@ -614,7 +614,7 @@ class PulseAligner:
                 return got
         return None
 
-    def _run(self, final: bool) -> AlignedPulses:
+    def _run(self, final: bool) -> AlignedPulses:  # noqa: C901  the per-pulse loop, kept whole
         if self._next is None and not self._acquire(final):
             return AlignedPulses.empty(self.gate.length)
         done: list[_Edge] = []

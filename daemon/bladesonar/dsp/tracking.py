@@ -425,7 +425,7 @@ class Tracker:
     given_up: int = 0            # tracks given up for a rate beyond the bound (limit_rate)
     #: largest |rate| a new line may have (cycles per pulse): the analysis bounds it by
     #: how fast a fan last published at some speed, or at rest, can have sped up since
-    #: (PulseAnalyzer._bound_rate)
+    #: (analyzer.RateBound)
     rate_bound: float = math.inf
     _recent: deque[tuple[int, float, float]] = field(default_factory=deque)
     # (weight, accepted) of _recent

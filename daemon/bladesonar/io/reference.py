@@ -249,7 +249,7 @@ def _num(meta: dict[str, Any], key: str, *, lo: float = -math.inf, hi: float = m
     return v
 
 
-def _check_meta(meta: Any) -> None:
+def _check_meta(meta: Any) -> None:  # noqa: C901  a flat list, one check per metadata key
     """Types and ranges of every metadata value the analysis reads."""
     from .. import config as config_mod
     from ..dsp.gate import max_gate_stop

@@ -35,7 +35,7 @@ import numbers
 import re
 import time
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, NamedTuple, TypedDict
+from typing import TYPE_CHECKING, Any, NamedTuple, TypedDict, cast
 
 from ..answer import (
     MOTION_EVENTS,
@@ -95,6 +95,44 @@ RUNNING_HOLD_S = 60.0
 #: Statuses under which ``running`` is held: the analysis (or the learning that follows
 #: a Forget) goes on and will name the state again. Any other status makes it unknown.
 HOLD_STATUSES = ("starting", "ok", "learning", "airflow_contradiction")
+
+
+class _StateExtras(TypedDict, total=False):
+    """The state message's keys that only some states have."""
+
+    detail: str
+    """The status's detail, when the status has one."""
+    reason: str
+    """Why the answer is what it is (every estimate has one)."""
+    warnings: list[str]
+    """Only when there are some."""
+
+
+class StatePayload(_StateExtras):
+    """The state message (:func:`state_payload`): :data:`STATE_KEYS` in that order, then
+    the keys of :class:`_StateExtras` a state has, then ``time``; floats as
+    :func:`clean` leaves them (None where not finite)."""
+
+    direction: str
+    """same / reversed / stopped / unknown (:class:`answer.Direction`)."""
+    rotation: str | None
+    rotating: bool | None
+    running: bool | None
+    """The held value of :class:`RunningHold`."""
+    rate_hz: float | None
+    rpm: float | None
+    relative_rate: float | None
+    rate_state: str | None
+    rate_change_hz_s: float | None
+    confidence: float | None
+    """Null while the direction is unknown."""
+    airflow: str
+    """down / up / unknown."""
+    airflow_confidence: float | None
+    window_s: float | None
+    reference: str | None
+    status: str
+    time: str
 
 
 class StatsPayload(TypedDict):
@@ -264,7 +302,7 @@ def utc_iso(t: float | None = None) -> str:
 
 def state_payload(estimate: Estimate | Mapping[str, Any] | None, t: float | None = None, *,
                   status: str | None = None, detail: str | None = None,
-                  running: bool | None = None) -> dict[str, Any]:
+                  running: bool | None = None) -> StatePayload:
     """The state message: :data:`STATE_KEYS` first (null when the estimate lacks one),
     then ``detail`` (when given) and the estimate's further fields (``reason``...), then
     ``time``.
@@ -291,7 +329,7 @@ def state_payload(estimate: Estimate | Mapping[str, Any] | None, t: float | None
         if k not in out and k != "time":
             out[k] = v
     out["time"] = utc_iso(t)
-    return clean_dict(out)
+    return cast(StatePayload, clean_dict(out))
 
 
 class RunningHold:

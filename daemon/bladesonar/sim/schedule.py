@@ -294,7 +294,7 @@ def _wobble(item: Any, key: str, source: str | None) -> Wobble:
     return Wobble(amp, period)
 
 
-def _segment(item: Any, key: str, source: str | None) -> Segment:
+def _segment(item: Any, key: str, source: str | None) -> Segment:  # noqa: C901  one check a field
     fix = ("write DIR:RATE_HZ:SECONDS[~RAMP_S] with DIR cw, ccw or stop, e.g. cw:0.4:5, "
            "stop:0:2 or cw:0.4:20~8 (ramp over the first 8 s)")
     ramp: Any = 0.0
