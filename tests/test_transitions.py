@@ -1053,3 +1053,23 @@ def test_each_hold_names_its_rule():
     holds, tr = walk(same + [_d("reversed", 0.2)] * 3 + [_d("reversed", 0.05)])
     assert holds[60:63] == [Hold.TOO_SOON] * 3 and holds[63] == Hold.SLOW_NEW_DIRECTION
     assert tr.known == Kind.SAME
+
+
+def test_a_sudden_run_that_beats_its_mirror_corrects_an_unchecked_direction():
+    """Closed form, 34 pulses/s, 0.3 Hz/s: a fan starts and is taken 'same' at 0.21 Hz
+    on a line never shown to beat its mirror image (a first lock on the mirror of the
+    blade pattern), then the other way at 0.2 Hz at once, sooner than a fan reverses
+    (1.37 s through zero), on a line that has beaten its mirror. No fan turns about that
+    fast: the first direction was the mirror's, and the new one corrects it with no
+    `reversed` event (at pulse 134, reversal_hold_s after the run began, the state turns
+    'reversed'). After a 'same' that had beaten its mirror too, the same answers are a
+    reversal, as before."""
+    rest = [_d("stopped")] * 40
+    same = [_d("same", 0.21, checked=False)] * 100
+    fired, published, tr = _walk(rest + same + [_d("reversed", 0.2)] * 35)
+    assert fired == [("started", 40 + 16)]
+    assert tr.known == Kind.REVERSED and published[40 + 134] == "reversed"
+    assert "unknown" == published[40 + 133]
+    assert tr.known_decision is not None and "corrected" in tr.known_decision.reason
+    fired, _, _ = _walk(rest + [_d("same", 0.21)] * 100 + [_d("reversed", 0.2)] * 60)
+    assert fired == [("started", 40 + 16), ("reversed", 40 + 134)]

@@ -29,7 +29,9 @@ it: docs/dynamics.md, "Why each rule is there".
 Events fire only on a change of the *known* state: ``started`` (stopped -> turning),
 ``stopped`` (turning -> stopped), ``reversed`` (turning one way -> the other, whatever
 unknown stretch lay between, which is how a real fan reverses: through zero). The first
-known state fires nothing, nor does a direction found for a fan known to turn. Both the
+known state fires nothing, nor does a direction found for a fan known to turn, nor a
+*correction*: a sudden run the other way (rule 3) whose line has beaten its mirror image,
+after a direction that never had, replaces a direction that was the mirror's. Both the
 daemon and ``analyze --track`` run this same code.
 """
 
@@ -188,6 +190,8 @@ class Transitions:
         self._last_turning_hz = 0.0          # and its |rate| (Hz)
         self._run_from = -math.inf           # the start of its unbroken run of answers (s)
         self._known_seen: tuple[float, float] | None = None   # (t, rate), known direction
+        self._known_checked = False          # an answer of the known direction was on a
+                                             # line that beat its mirror image
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
     @property
@@ -224,7 +228,7 @@ class Transitions:
             held = rule(t_s, d, cand)
             if held is not None:
                 return self._held(d, held), []
-        fired = self._confirm_kind(t_s, pulse, d, cand)
+        d, fired = self._confirm_kind(t_s, pulse, d, cand)
         self.known_decision = d
         return d, fired
 
@@ -351,6 +355,7 @@ class Transitions:
         (the chain starts afresh from it; seen at rest, a reversal may follow)."""
         if cand in TURNING_KINDS:
             if cand == self.known:
+                self._known_checked = self._known_checked or d.mirror_checked
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen  # (bounded from rest like it)
         elif cand == Kind.STOPPED and self.known in TURNING_KINDS:
@@ -385,21 +390,40 @@ class Transitions:
         """Pulses of answers ``cand`` needs to be confirmed."""
         return self._stop_confirm if cand == Kind.STOPPED else self._confirm
 
-    def _confirm_kind(self, t_s: float, pulse: int, d: Decision, cand: Kind) -> list[Event]:
-        """``cand`` becomes the known kind if it is new; the event that makes, if any."""
+    def _confirm_kind(self, t_s: float, pulse: int, d: Decision, cand: Kind
+                      ) -> tuple[Decision, list[Event]]:
+        """``cand`` becomes the known kind if it is new; (the decision, with a correction
+        said in its reason), the event that makes, if any."""
         if cand == self.known:
-            return []
+            return d, []
         before = self.known
+        corrected = self._corrects(cand)
         self.known = cand
+        self._known_checked = d.mirror_checked
         self._known_seen = (float(t_s), _rate(d)) if cand != Kind.STOPPED else None
+        if corrected:
+            return replace(d, reason=f"direction corrected: the {before} answered before "
+                                     f"was the mirror image of the blade pattern (it never "
+                                     f"fitted the reference better than its mirror, this "
+                                     f"line has): {d.reason}"), []
         if before is None or (before == Kind.TURNING and cand in WAY_KINDS):
-            return []                        # (a direction found for a turning fan)
+            return d, []                     # (a direction found for a turning fan)
         kind = (EventKind.STOPPED if cand == Kind.STOPPED else
                 EventKind.STARTED if before == Kind.STOPPED else EventKind.REVERSED)
         ev = Event(kind, float(t_s), int(pulse), d.direction, d.rotation,
                    None if cand == Kind.STOPPED else d.rate_hz)
         self.events.append(ev)
-        return [ev]
+        return d, [ev]
+
+    def _corrects(self, cand: Kind) -> bool:
+        """Whether confirming ``cand`` corrects the known direction rather than reverses
+        it: a sudden run (sooner than a fan reverses, so it got here only on a line that
+        beat its mirror image) after a direction never seen on such a line. No fan turns
+        about that fast; the direction before was the mirror of the blade pattern (a
+        start's first lock, mostly). Where both lines beat their mirrors, the physics and
+        the check disagree, and the reversal stands."""
+        return self.known in WAY_KINDS and cand in WAY_KINDS and cand != self.known \
+            and self._cand_sudden and not self._known_checked
 
     def _line_rate(self, t_s: float, kind: Kind) -> float | None:
         """The rate (Hz) at ``t_s`` of the line on which answers of ``kind`` were last
