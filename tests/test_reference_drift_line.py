@@ -68,3 +68,22 @@ def test_a_fan_that_turns_on_the_drifts_cycle_by_chance_is_learned_without_a_wor
     ref, dr, _ = _reference(1, dims=2, drift_ppm=ppm)
     assert ref.meta["rate_hz"] == pytest.approx(dr.ref_rate_hz, rel=0.01)
     assert not _drift_words(ref)
+
+
+@pytest.mark.xfail(strict=True, reason="open (issue 31): a fan on twice the drift's "
+                   "sub-sample cycle is learned at the cycle itself, half its rate, "
+                   "with no warning")
+def test_a_fan_on_twice_the_drifts_cycle_is_learned_at_its_rate():
+    """2-D tuning scene 26 (a 4-blade fan at 0.938 Hz) with the drift chosen so that its
+    blade rate is exactly twice the sub-sample cycle (42.5 ppm): every line of the fan
+    and of the drift's pattern is a harmonic of the cycle, and the estimate takes the
+    cycle as the fundamental, 0.469 Hz, in both bands (found by building the coincidence
+    in tuning scenes 2-48 at harmonic 1 and 1-30 at harmonic 2: the only one of 77 not
+    learned at its rate)."""
+    c0 = config.Config()
+    dr = random_scene.draw(26, c0.prf_hz)
+    blade_rate = dr.ref_rate_hz * dr.blades / c0.prf_hz
+    ppm = blade_rate / 2.0 / c0.waveform.pri_samples * 1e6
+    assert ppm == pytest.approx(42.5, abs=0.1)
+    ref, dr, _ = _reference(26, dims=2, drift_ppm=ppm)
+    assert ref.meta["rate_hz"] == pytest.approx(dr.ref_rate_hz, rel=0.01)
