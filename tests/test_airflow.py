@@ -308,3 +308,36 @@ def test_the_independent_3d_sample_gives_its_airflow(capsys):
         out = json.loads(capsys.readouterr().out)
         assert out["airflow_rotation"] == truth[key]["rotation"], out
         assert out["airflow"] == ("down" if truth[key]["rotation"] == "ccw" else "up")
+
+
+def _bumps(centres: list[float], *, blocks: int = 24, width: float = 3.0,
+           seed: int = 0) -> list[np.ndarray]:
+    """Block correlations (one array per lag, as :func:`af.lag_correlations` gives) that
+    peak at ``centres[lag - 1]`` samples in every block, with a little white noise."""
+    rng = np.random.default_rng(seed)
+    s = np.arange(-af.MAX_SHIFT, af.MAX_SHIFT + 1)
+    return [np.exp(-0.5 * ((s - c) / width) ** 2)[None, :]
+            + 0.05 * rng.standard_normal((blocks, len(s))) for c in centres]
+
+
+def test_an_offset_that_does_not_grow_with_the_lag_is_unknown():
+    # two echoes at fixed ranges 16 samples apart trading strength as the fan turns: the
+    # correlation peaks 16 samples out at every lag (closed form of the pair: the offset
+    # is their spacing, not lag times a speed); a glint moving 16 samples per pulse is 32
+    # out at lag 2 and is still called
+    fixed = af._decide_at_lags(_bumps([16.0, 16.5]), 400, 16.0, mirror=False)
+    assert fixed.airflow == "unknown" and af.FIXED in fixed.reason, fixed
+    moving = af._decide_at_lags(_bumps([16.0, 32.0]), 400, 16.0, mirror=False)
+    assert moving.airflow == "up" and abs(moving.t) >= af.CALL_T, moving
+    # under FIXED_MIN the guard is silent
+    slow = af._decide_at_lags(_bumps([-4.0, -4.4]), 400, 4.0, mirror=False)
+    assert slow.airflow == "down", slow
+
+
+def test_a_peak_at_the_end_of_the_shifts_is_no_located_peak():
+    # the lag-2 correlation still rising at the last shift looked at (its bump centred
+    # beyond it): no position to fit, unknown; the same at 40 samples is called
+    edge = af._decide_at_lags(_bumps([20.0, 60.0], width=8.0), 400, 20.0, mirror=False)
+    assert edge.airflow == "unknown" and af.EDGE in edge.reason, edge
+    inside = af._decide_at_lags(_bumps([20.0, 40.0], width=8.0), 400, 20.0, mirror=False)
+    assert inside.airflow == "up" and abs(inside.t) >= af.CALL_T, inside
