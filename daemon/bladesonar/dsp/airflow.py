@@ -31,7 +31,9 @@ The stage, on drift-aligned gated pulses (dsp/pulses.py):
    its range and only changes strength: a reverberant tail, the blades' diffuse echoes
    far off the axis), steps 3-4 again on the correlations' mirror excess c(s) - c(-s),
    which such echoes leave empty; its call also needs its largest values at lags 1 and
-   2 on the side of the call. Two readings that call opposite ways give unknown.
+   2 on the side of the call. Two readings that call opposite ways give unknown;
+6. a call whose correlation peak at some lag lies at the end of the shifts looked at is
+   unknown (no shift is located there: the reverberant tail's fan-moving arrivals).
 """
 
 from __future__ import annotations
