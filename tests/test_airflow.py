@@ -308,3 +308,22 @@ def test_the_independent_3d_sample_gives_its_airflow(capsys):
         out = json.loads(capsys.readouterr().out)
         assert out["airflow_rotation"] == truth[key]["rotation"], out
         assert out["airflow"] == ("down" if truth[key]["rotation"] == "ccw" else "up")
+
+
+def _bumps(centres: list[float], *, blocks: int = 24, width: float = 3.0,
+           seed: int = 0) -> list[np.ndarray]:
+    """Block correlations (one array per lag, as :func:`af.lag_correlations` gives) that
+    peak at ``centres[lag - 1]`` samples in every block, with a little white noise."""
+    rng = np.random.default_rng(seed)
+    s = np.arange(-af.MAX_SHIFT, af.MAX_SHIFT + 1)
+    return [np.exp(-0.5 * ((s - c) / width) ** 2)[None, :]
+            + 0.05 * rng.standard_normal((blocks, len(s))) for c in centres]
+
+
+def test_a_peak_at_the_end_of_the_shifts_is_no_located_peak():
+    # the lag-2 correlation still rising at the last shift looked at (its bump centred
+    # beyond it): no position to fit, unknown; the same at 40 samples is called
+    edge = af._decide_at_lags(_bumps([20.0, 60.0], width=8.0), 400, 20.0, mirror=False)
+    assert edge.airflow == "unknown" and af.EDGE in edge.reason, edge
+    inside = af._decide_at_lags(_bumps([20.0, 40.0], width=8.0), 400, 20.0, mirror=False)
+    assert inside.airflow == "up" and abs(inside.t) >= af.CALL_T, inside

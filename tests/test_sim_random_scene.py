@@ -161,3 +161,16 @@ def test_a_3d_day_is_the_airflow_room_with_a_day_of_its_own(seed):
     assert sch.segments[0].rate_hz == pytest.approx(d3.ref_rate_hz, abs=1e-3)
     assert all(s.rate_hz == 0.0 or lo - 1e-3 <= s.rate_hz <= hi + 1e-3
                for s in sch.segments)
+
+
+def test_a_reverberant_draw_keeps_the_room_and_adds_a_long_tail():
+    # tools/bench_airflow --reverb: the same scene, device and run, in a ringing room
+    for seed in (1, 2, 3):
+        d = rs.draw_3d(seed)
+        r = rs.reverberant(d)
+        assert r.scene == d.scene and r.schedule == d.schedule and r.snr_db == d.snr_db
+        lz = d.scene.size[2]
+        assert 0.45 * lz / 2.8 - 1e-3 <= r.nuisances.rt60_s <= 0.8 * lz / 2.8 + 1e-3
+        assert -6.0 <= r.nuisances.reverb_db <= 0.0
+        assert r.nuisances.agc_db == d.nuisances.agc_db
+        assert rs.reverberant(d) == r          # drawn from the seed

@@ -31,7 +31,9 @@ The stage, on drift-aligned gated pulses (dsp/pulses.py):
    its range and only changes strength: a reverberant tail, the blades' diffuse echoes
    far off the axis), steps 3-4 again on the correlations' mirror excess c(s) - c(-s),
    which such echoes leave empty; its call also needs its largest values at lags 1 and
-   2 on the side of the call. Two readings that call opposite ways give unknown.
+   2 on the side of the call. Two readings that call opposite ways give unknown;
+6. a call whose correlation peak at some lag lies at the end of the shifts looked at is
+   unknown (no shift is located there: the reverberant tail's fan-moving arrivals).
 """
 
 from __future__ import annotations
@@ -91,6 +93,12 @@ SIDES = "the mirror excess's peaks at lags 1 and 2 lie on opposite sides"
 #: the axis, 0.69 Hz) such a call was wrong with t 31; on seeds 1-400 the rule silenced
 #: one right call besides (seed 34).
 NEAR_ZERO = 2.0
+#: A call whose correlation peak at some lag lies at the end of the shifts looked at is
+#: unknown: the correlation still rises past it, so there is no located peak. On tuning
+#: seeds with a long RT60 forced (``tools/bench_airflow --reverb``), read over parts of
+#: the range gate, this removed 2 of 23 wrong readings (the tail's fan-moving arrivals)
+#: and none of 331 right whole-gate ones.
+EDGE = f"a correlation peak at the end of the shifts looked at ({MAX_SHIFT} samples)"
 #: Time constants of the two-sided means: the static room and the envelope's slow part, s.
 STATIC_S = 3.0
 ENVELOPE_S = 1.0
@@ -415,7 +423,21 @@ def _decide_at_lags(per_lag: list[np.ndarray], used: int, speed: float, *,
                  for b in per_lag[:2]]
         if any(sg != np.sign(a.t) for sg in signs):
             return Airflow("unknown", a.confidence, a.t, a.shift, used, SIDES, lags)
+    if a.airflow != "unknown":
+        why = lag_structure(lag_peaks(per_lag, mirror=mirror))
+        if why:
+            return Airflow("unknown", a.confidence, a.t, a.shift, used, why, lags)
     return a
+
+
+def lag_structure(peaks: list[float]) -> str | None:
+    """Why the correlation peaks at lags 1, 2, .. are no motion, or None: a peak at the
+    end of the shifts looked at is not located (on a reverberant tuning case, 18 samples
+    at lag 1 and the end at lag 2 were called wrong with t 657, read over part of the
+    gate: the tail's fan-moving arrivals, not a glint)."""
+    if any(abs(p) >= MAX_SHIFT for p in peaks):
+        return EDGE
+    return None
 
 
 def combine(plain: Airflow, mirrored: Airflow, lag1_shift: float = math.inf) -> Airflow:

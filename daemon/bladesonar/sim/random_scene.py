@@ -26,6 +26,7 @@ scenes to come and only sets how far the late reverberation carries):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -324,6 +325,17 @@ def draw_3d(seed: int) -> SceneDraw3D:
                        drift_ppm=float(rng.uniform(-DRIFT_PPM, DRIFT_PPM)),
                        schedule=schedule, seconds=seconds,
                        rate_hz=rate if direction == "ccw" else -rate, nuisances=Nuisances(**nz))
+
+
+def reverberant(d: SceneDraw3D) -> SceneDraw3D:
+    """``d`` in a reverberant room: RT60 0.45-0.8 s (scaled by the ceiling as in
+    :func:`draw_3d`) and the tail -6..0 dB, drawn from the seed (``tools/bench_airflow
+    --reverb``: cases built to study the fan's share of the tail)."""
+    rng = np.random.default_rng([d.seed, 77])
+    nz = dataclasses.replace(
+        d.nuisances, rt60_s=round(float(rng.uniform(0.45, 0.8)) * d.scene.size[2] / 2.8, 3),
+        reverb_db=round(float(rng.uniform(-6.0, 0.0)), 1))
+    return dataclasses.replace(d, nuisances=nz)
 
 
 @dataclass(frozen=True)
