@@ -366,7 +366,8 @@ def test_a_quantum_change_mid_run_changes_nothing_a_subscriber_sees(graph48, als
     """The graph's buffer size is forced from 1024 to 256 frames and back while the
     daemon tracks, before the reversal: both streams stay on the graph's clock, no xrun,
     the same single event and rate. The change steps the latency between the streams
-    (docs/audio.md), which costs the pulse whose window holds the step."""
+    (docs/audio.md), which costs the pulse whose window holds the step, not the
+    timing of the event."""
     srv = graph48.server
     run = graph48.run(RUN_S, actions=((4.0, lambda: srv.force_quantum(256)),
                                       (8.0, lambda: srv.force_quantum(0))))
@@ -375,16 +376,11 @@ def test_a_quantum_change_mid_run_changes_nothing_a_subscriber_sees(graph48, als
     check_no_loss(st)
     assert st["audio_restarts"] == 0
     assert st["audio"]["sound_server"]["stream_latency_jumps"] >= 1   # the change was seen
+    # the change drops the pulse whose window holds the step; the decisions stay on
+    # the same pulse numbers as through the ALSA loopback (analyzer.py), which moved
+    # the confirming one across the daemon's 8-PRI analysis block (+0.42 s before)
     off = off_alsa(run, graph48.last_session(), alsa48)
-    if abs(off) >= 0.3:
-        # open (docs/audio.md): the same events and rate, but on the step reversal the
-        # reversal was confirmed 0.53-0.66 s later than through the ALSA loopback in
-        # every run (256 or 512 frames, changed at 4-16 s; 0.18 s without the change);
-        # on the 3 s ramp one run gave +0.07 s. Not the daemon's timing (capture to
-        # state 4-20 ms); offline, a latency step with its dropped pulse moved the
-        # confirmation of the same reversal by up to 0.9 s either way
-        pytest.xfail(f"a quantum change puts the reversal {off:+.2f} s "
-                     "off the ALSA loopback's (open: docs/audio.md)")
+    assert abs(off) < 0.3, off
 
 
 def test_the_server_restarted_under_the_daemon(graph48, alsa48):
@@ -435,15 +431,13 @@ def test_nodes_suspended_under_the_daemon(graph48, alsa48):
     if len(after) == 2:              # the graph stalled: the daemon reopened its streams
         assert st["audio_restarts"] >= 1
         assert "no direct-coupling pulse through PipeWire" in run.stderr
-    check_no_loss(st)
-    if abs(off) >= 0.3:
-        # open, as for the quantum change (docs/audio.md): the suspend steps the latency
-        # between the streams twice and costs two pulses; on the 3 s ramp the reversal
-        # was then confirmed 0.42 s after the ALSA loopback's in both runs (the step
-        # reversal had passed, 1.95 s against 1.77 s, before sudden reversals waited for
-        # the mirror check)
-        pytest.xfail(f"a suspend puts the reversal {off:+.2f} s off "
-                     "the ALSA loopback's (open: docs/audio.md)")
+    # the suspension itself may silence the coupling for a few PRIs with no latency
+    # jump (seen: 1 drop-out and 2 missing pulses at the same edge): one more allowance
+    assert st["xruns"] == 0, st
+    jumps = st["audio"]["sound_server"]["stream_latency_jumps"]
+    assert st["dropped_pulses"] <= PULSES_PER_JUMP * (jumps + 1), st
+    # its missing pulses no longer move the decisions off the ALSA loopback's pulses
+    assert abs(off) < 0.3, off
 
 
 @pytest.fixture(scope="module")
