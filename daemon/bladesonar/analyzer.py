@@ -265,11 +265,6 @@ class PulseAnalyzer:
     new_events: list[Event] = field(default_factory=list)
     #: the decision cadence (tracking.decide_every): pulses since the last decision
     _since: int = 0
-    #: the decision cadence is on pulse numbers: the group (pulse // decide_every) of
-    #: the last decision. Counted over valid pulses, a pulse dropped at a latency step
-    #: moved every later decision by one pulse, and the confirming one across the
-    #: daemon's analysis block (docs/audio.md, "Through PipeWire")
-    _group: int = -1
     #: the long meter's statistic at the last decision (the alias watch and the
     #: reference-fit watch read it between decisions)
     motion_fed: float = float("nan")
@@ -367,11 +362,11 @@ class PulseAnalyzer:
         # the meters' statistics at the block's decisions, in a few matrix products (the
         # pulses are added to the meters once the block is done)
         at: dict[int, int] = {}
-        group, first = self._group, self.state is None
-        ks = block.index[v].tolist()
+        since, first = self._since, self.state is None
         for i in range(len(feats)):
-            if ks[i] // every != group or first:
-                at[i + 1], group, first = len(at), ks[i] // every, False
+            since += 1
+            if since >= every or first:
+                at[i + 1], since, first = len(at), 0, False
         ends = np.fromiter(at, dtype=np.int64, count=len(at))
         pm, ps = self.motion.preview(feats, ends), self.still.preview(still_feats, ends)
         # Python's numbers, not numpy's scalars, in the loop (the same values)
@@ -399,11 +394,9 @@ class PulseAnalyzer:
             self._since += 1
             fired: list[Event] = []
             changed = False
-            if k // every != self._group or self.state is None:
-                # the first valid pulse of each group of decide_every pulse numbers, so
-                # that the daemon (blocks of 8) and analyze (large blocks) decide on the
-                # same pulses, and a dropped pulse does not move the later decisions
-                self._group = k // every
+            if self._since >= every or self.state is None:
+                # counted over all valid pulses, so that the daemon (blocks of 8)
+                # and analyze (large blocks) decide on the same pulses
                 q = at[i + 1]
                 self.motion_fed = float(pm.motion[q])
                 d = self.decided = self.decision((self.motion_fed, float(ps.motion[q])))

@@ -120,16 +120,7 @@ class LiveAnalyzer:
             if not self._held:
                 self._held_at = start_sample
             self._held.append(np.asarray(samples, dtype=np.float64))
-            held = sum(len(h) for h in self._held)
-            an = self.analyzer
-            due = None if an is None else self.aligner.hand_on_at(
-                self.cfg.tracking.decide_every)
-            if held >= self.block_pulses * self.pri or \
-                    (due is not None and self._pushed + held >= due):
-                # a block ends where the next decision's pulse can be handed on: cut on
-                # the capture's grid, a decision waited up to a block for the rest of
-                # it, a part that depends on the latency between the streams (0.24 s
-                # later through PipeWire than through the ALSA loopback, docs/audio.md)
+            if sum(len(h) for h in self._held) >= self.block_pulses * self.pri:
                 self.flush()
             return
         self._analyse(samples, start_sample)

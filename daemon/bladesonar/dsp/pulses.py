@@ -417,19 +417,6 @@ class PulseAligner:
         """Current PRI estimate in capture samples (differs from ``pri`` by clock drift)."""
         return self._period
 
-    def hand_on_at(self, every: int) -> int | None:
-        """Stream position the samples must reach before the next pulse whose number is a
-        multiple of ``every`` is handed on (its successor's edge measured; the edges
-        predicted at the current PRI); None before the first edge. The daemon cuts its
-        analysis blocks there, on the pulses' grid, not the capture's."""
-        if self._pending is None or every < 1:
-            return None
-        p = self._pending
-        k = -(-p.index // every) * every
-        reach = TEMPLATE_AFTER if self._template is not None else KERNEL_HALF + 2
-        pred = p.edge + (k - p.index + 1) * self._period
-        return int(math.floor(pred)) + self.pri // 2 + reach
-
     def push(self, chunk: np.ndarray) -> AlignedPulses:
         """Add samples; return the pulses completed by them (possibly none)."""
         if self._ended:
