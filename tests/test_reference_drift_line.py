@@ -55,17 +55,24 @@ def test_a_visible_fan_under_drift_is_learned_at_its_rate_without_a_word():
     assert not _drift_words(ref)
 
 
+def _on_twice_the_cycle(seed: int, ppm: float):
+    """2-D tuning scene ``seed``'s reference learned with the drift chosen so that its
+    blade rate is exactly twice the sub-sample cycle (``ppm``, checked to 0.1)."""
+    c0 = config.Config()
+    dr = random_scene.draw(seed, c0.prf_hz)
+    blade_rate = dr.ref_rate_hz * dr.blades / c0.prf_hz
+    drift = blade_rate / 2.0 / c0.waveform.pri_samples * 1e6
+    assert drift == pytest.approx(ppm, abs=0.1)
+    ref, dr, _ = _reference(seed, dims=2, drift_ppm=drift)
+    return ref, dr
+
+
 def test_a_fan_that_turns_on_the_drifts_cycle_by_chance_is_learned_without_a_word():
     """2-D tuning scene 1 (a 5-blade fan at 0.228 Hz) with the drift chosen so that its
     blade rate, 0.0335 per pulse, is exactly twice the sub-sample cycle (12.9 ppm on a
     1297-sample PRI): the fan's line is in the band below too, so it is the fan's, and
     nothing is said (refusing such references refused a room whose fan was plain to see)."""
-    c0 = config.Config()
-    dr = random_scene.draw(1, c0.prf_hz)
-    blade_rate = dr.ref_rate_hz * dr.blades / c0.prf_hz
-    ppm = blade_rate / 2.0 / c0.waveform.pri_samples * 1e6
-    assert ppm == pytest.approx(12.9, abs=0.1)
-    ref, dr, _ = _reference(1, dims=2, drift_ppm=ppm)
+    ref, dr = _on_twice_the_cycle(1, ppm=12.9)
     assert ref.meta["rate_hz"] == pytest.approx(dr.ref_rate_hz, rel=0.01)
     assert not _drift_words(ref)
 
@@ -80,10 +87,5 @@ def test_a_fan_on_twice_the_drifts_cycle_is_learned_at_its_rate():
     cycle as the fundamental, 0.469 Hz, in both bands (found by building the coincidence
     in tuning scenes 2-48 at harmonic 1 and 1-30 at harmonic 2: the only one of 77 not
     learned at its rate)."""
-    c0 = config.Config()
-    dr = random_scene.draw(26, c0.prf_hz)
-    blade_rate = dr.ref_rate_hz * dr.blades / c0.prf_hz
-    ppm = blade_rate / 2.0 / c0.waveform.pri_samples * 1e6
-    assert ppm == pytest.approx(42.5, abs=0.1)
-    ref, dr, _ = _reference(26, dims=2, drift_ppm=ppm)
+    ref, dr = _on_twice_the_cycle(26, ppm=42.5)
     assert ref.meta["rate_hz"] == pytest.approx(dr.ref_rate_hz, rel=0.01)
