@@ -322,7 +322,11 @@ class DopplerLines:
     def explained(self, r: float) -> float:
         """Fraction of the line energy on the first 16 harmonics of ``r``."""
         # the line of harmonic h sits within +-h/2 padded bins of h*r (r is known to about
-        # half a padded bin) plus its own mainlobe; take the strongest bin of each
+        # half a padded bin) plus its own mainlobe; take the strongest bin of each and the
+        # line's central FFT bin either side of it (pad padded bins; the Hann window's line
+        # is 2 bins wide each way). Half a bin each way counted only the peak of a line,
+        # and a multiple of r whose harmonics fell on the lines' flanks as well as on their
+        # peaks then explained more than r itself (docs/analysis.md)
         pad, excess, n_bins = self.pad, self.excess, len(self.nu)
         hs = np.arange(1, 17)
         centre = np.rint(_fold(hs * r) / self.bin_width).astype(int)
@@ -331,7 +335,7 @@ class DopplerLines:
             w = pad // 2 + int(h) // 2
             lo, hi = max(b - w, 0), min(b + w + 1, n_bins)
             i = lo + int(np.argmax(excess[lo:hi]))
-            got.update(range(max(i - pad // 2, 0), min(i + pad // 2 + 1, n_bins)))
+            got.update(range(max(i - pad, 0), min(i + pad + 1, n_bins)))
         return float(excess[list(got)].sum()) / self.line_energy
 
     def harmonics_with_energy(self, r: float) -> list[int]:
