@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from bladesonar import config
+from bladesonar.errors import EstimationError
 from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer, capture_pulses
 from bladesonar.reference_build import Reference, build_reference, folds_multipath, unfolding_pri
@@ -35,6 +36,9 @@ from bladesonar.sim.score import (
 
 #: the capture clock's drift on a tuned day (the issue's test condition)
 DRIFT_PPM = 40.0
+#: The fan speed a user picks when the reference asks for another one (commensurate
+#: with the PRF): a few percent faster, as the reference's words say.
+OTHER_SPEED = 1.04
 HERE = Path(__file__).resolve().parent.parent
 
 
@@ -62,9 +66,11 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2
     """A random scene's day (sim/random_scene.py; ``dims`` 3: a 3-D box room with pitched
     blades, ``draw_day_3d``, rendered in the same streamed chunks): the reference is
     learned in the same room, at the same SNR and drift, from 20 s of the fan at the
-    reference speed, as the daemon learns it; when it warns that the fan's wall bounces
-    fold past one PRI, or that echoes clip, it is learned again with the PRI the warning
-    names, or at half the playback volume (what the user is told to do)."""
+    reference speed, as the daemon learns it. What the reference says is done as a user
+    would do it, and it is learned again: when the fan's wall bounces fold past one PRI,
+    with the PRI the warning names; when echoes clip, at half the playback volume; when
+    the speed is commensurate with the PRF (warned, or refused), at another fan speed,
+    OTHER_SPEED times the last."""
     cfg0 = config.Config()
     if dims not in (2, 3):
         raise ValueError(f"dims {dims!r}: give 2 (floor-plan scenes) or 3 (box rooms)")
@@ -73,25 +79,34 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2
         else random_scene.draw_day_3d(seed, cfg0.prf_hz))
     cfg = config.replace(cfg0, scene={"blades": dr.blades})
     sch = parse(dr.schedule(hours * 3600.0))
-    def learn(cfg: config.Config) -> Reference:
+    def learn(cfg: config.Config, rate_hz: float) -> Reference:
         x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
-                        schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60",
+                        schedule=f"{dr.ref_direction}:{rate_hz:.4f}:60",
                         seed=seed, snr_db=dr.snr_db, drift_ppm=dr.drift_ppm,
                         nuisances=dr.nuisances, include_paths=False)
         return build_reference(x, cfg, dr.ref_direction)
 
-    ref = learn(cfg)
-    # what the reference's warnings tell the user to do, as a user would: a longer PRI
-    # for a far fan, a lower playback volume for echoes that clip (a wall 0.25 m away)
-    for _ in range(3):
+    rate_hz = dr.ref_rate_hz
+    ref: Reference | None = None
+    for _ in range(4):
+        try:
+            ref = learn(cfg, rate_hz)
+        except EstimationError as e:
+            if "different fan speed" not in str(e):
+                raise
+            ref, rate_hz = None, rate_hz * OTHER_SPEED
+            continue
         if folds_multipath(ref.gate, ref.meta["target_range_m"]):
             cfg = config.replace(cfg, waveform={
                 "pri_samples": unfolding_pri(cfg, ref.meta["target_range_m"])})
         elif any("lower the playback volume" in w for w in ref.meta["warnings"]):
             cfg = config.replace(cfg, waveform={"amplitude": cfg.waveform.amplitude / 2})
+        elif any("another fan speed" in w for w in ref.meta["warnings"]):
+            rate_hz *= OTHER_SPEED
         else:
             break
-        ref = learn(cfg)
+    if ref is None:
+        ref = learn(cfg, rate_hz)       # refused again: the refusal is the day's answer
     sim = Simulator(dr.scene, cfg, sch, snr_db=dr.snr_db, seed=seed + 1,
                     drift_ppm=dr.drift_ppm, nuisances=dr.nuisances, include_paths=False)
     return cfg, sch, sim, LiveAnalyzer(cfg, ref, block_pulses=block_pulses), dr
