@@ -457,6 +457,16 @@ class PulseAnalyzer:
         pm, ps = self.motion.preview(feats, ends), self.still.preview(still_feats, ends)
         # Python's numbers, not numpy's scalars, in the loop (the same values)
         phases, quals = m.phase.tolist(), m.quality.tolist()
+        # each pulse's half lag-1 difference energy (the noise level), for the block at
+        # once: np.vecdot's rows are the vector products ``dd @ dd`` (the same bits)
+        # (a block's first pulse against the last one before it; xv has a pulse at least)
+        dd = np.empty_like(xv)
+        if self._prev is not None:
+            np.subtract(xv[0], self._prev, out=dd[0])
+        else:
+            dd[0] = 0.0                      # (not read: no pulse before it)
+        np.subtract(xv[1:], xv[:-1], out=dd[1:])
+        lag1 = np.vecdot(dd, dd).tolist()
         for i, (k, edge) in enumerate(zip(block.index[v].tolist(), block.edges[v].tolist(),
                                           strict=True)):
             if k in self._restart_at:
@@ -470,8 +480,7 @@ class PulseAnalyzer:
             if self.aliases.count % RECHECK_EVERY == 0:
                 self._recheck_track()
             if self._prev is not None:
-                dd = xv[i] - self._prev
-                e = 0.5 * float(dd @ dd)
+                e = 0.5 * lag1[i]
                 self._noise = e if not math.isfinite(self._noise) else (
                     self._noise + (e - self._noise) / self.window)
             self._prev = xv[i]
