@@ -467,6 +467,7 @@ class PulseAnalyzer:
             dd[0] = 0.0                      # (not read: no pulse before it)
         np.subtract(xv[1:], xv[:-1], out=dd[1:])
         lag1 = np.vecdot(dd, dd).tolist()
+        del dd
         for i, (k, edge) in enumerate(zip(block.index[v].tolist(), block.edges[v].tolist(),
                                           strict=True)):
             if k in self._restart_at:
