@@ -160,12 +160,30 @@ class Decision:
                     confidence=published("confidence", self.confidence),
                     reason=self.reason)
 
+    def replaced(self, **changes: Any) -> Self:
+        """``dataclasses.replace(self, **changes)``: the same record (the fields set, then
+        ``__post_init__``), at a third of the cost (no ``__init__`` called with every
+        field by name), for the analyzer's two per-decision changes."""
+        bad = changes.keys() - _FIELD_NAMES
+        if bad:
+            raise TypeError(f"Decision has no field(s) {sorted(bad)}: use one of "
+                            f"{sorted(_FIELD_NAMES)}")
+        c = object.__new__(type(self))
+        c.__dict__.update(self.__dict__)
+        c.__dict__.update(changes)
+        c.__post_init__()
+        return c
+
     @property
     def kind(self) -> Kind | None:
         """What this answer knows of the motion (None: nothing; a turning fan whose
         direction is in doubt is ``Kind.TURNING``)."""
         k = Kind.of(self.direction)
         return Kind.TURNING if k is None and self.turning else k
+
+
+#: Decision's fields (Decision.replaced)
+_FIELD_NAMES = frozenset(f.name for f in fields(Decision))
 
 
 @dataclass(frozen=True)
