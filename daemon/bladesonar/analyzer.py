@@ -475,8 +475,9 @@ class PulseAnalyzer:
             st = self.tracker.update(k, phases[i], quals[i])
             self._follow_phase(k, st)
             tr = self.tracker
+            fph = tr.follower_phase
             self.aliases.push(k, dist[i], math.nan if not st.locked else
-                              tr.fx.item(0) if tr.fx is not None else st.phase)
+                              fph if fph is not None else st.phase)
             self._check_aliases()
             if self.aliases.count % RECHECK_EVERY == 0:
                 self._recheck_track()
@@ -758,7 +759,7 @@ class PulseAnalyzer:
             # a direction is claimed, so the fan turns at least that fast: the latest rate
             # has drifted under it; the decision's own rate stands
             return d
-        return replace(d, relative_rate=rel, rate_hz=hz, rpm=hz * 60.0)
+        return d.replaced(relative_rate=rel, rate_hz=hz, rpm=hz * 60.0)
 
     def take_events(self) -> list[Event]:
         """Events confirmed since the last call (the daemon publishes them)."""
@@ -860,8 +861,8 @@ class PulseAnalyzer:
             # tracked rate is the latest and lags it); a changing one is the follower's
             args["rate"] = mean
             d = decide(**args)
-        d = replace(d, mirror_checked=locked and self.aliases.mirror_checked(self.tracker),
-                    doubtful_room=self.aliases.doubtful)
+        d = d.replaced(mirror_checked=locked and self.aliases.mirror_checked(self.tracker),
+                       doubtful_room=self.aliases.doubtful)
         misfit = self.scale_misfit
         if misfit and d.direction in WAYS:
             return Decision(Direction.UNKNOWN, None, d.relative_rate, d.rate_hz, d.rpm,
