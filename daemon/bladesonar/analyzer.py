@@ -695,12 +695,13 @@ class PulseAnalyzer:
         sees it too (1.5 s of 0.02 Hz read 7.7 against its 1.15 for rest)."""
         tr = self.tracker
         st = tr.settings
-        if tr.x is None or tr.P is None or tr.start_k is None or tr.last_k is None \
+        if not tr.locked or tr.start_k is None or tr.last_k is None \
                 or tr.last_k - tr.start_k < 2 * st.init_pulses:
             return False
         floor = self._cycles_per_pulse(0.5 * self._decide_settings.rate_floor_hz)
-        sd = math.sqrt(max(tr.P.item(1, 1), 0.0))
-        if abs(tr.x.item(1)) + 2.0 * sd >= floor:
+        rate, var = tr.track_rate
+        sd = math.sqrt(max(var, 0.0))
+        if abs(rate) + 2.0 * sd >= floor:
             return False
         recent = self._recent[-st.init_pulses:]
         w = [q * q for _, q in recent]
@@ -742,13 +743,13 @@ class PulseAnalyzer:
         if d.direction not in WAYS or d.relative_rate is None:
             return d
         tr = self.tracker
-        if tr.x is None:
+        if not tr.locked:
             return d
         now, _ = tr.rate_now
         rate = now
         if d.rate_state == RateState.SETTLED:
             mean = self.window_rate()
-            steady = mean if mean is not None else tr.x.item(1)
+            steady = mean if mean is not None else tr.track_rate[0]
             if steady * now > 0 and abs(steady - now) <= SETTLED_AGREE * abs(steady):
                 rate = steady
         if not (math.isfinite(rate) and rate * d.relative_rate > 0):
@@ -787,9 +788,9 @@ class PulseAnalyzer:
         tr = self.tracker
         if not tr.locked or self.aliases.verified == tr.identity:
             return
-        assert tr.x is not None and tr.P is not None and tr.last_k is not None   # locked
-        rate = tr.x.item(1)
-        sd = math.sqrt(max(tr.P.item(1, 1), 0.0))
+        assert tr.last_k is not None   # locked
+        rate, var = tr.track_rate
+        sd = math.sqrt(max(var, 0.0))
         span = int(tr.last_k - tr.start_k) + 1 if tr.start_k is not None else self.window
         fracs = aliasing.near_fractions(rate, span=span, rate_std=sd,
                                         accel=self._clear_accel())
@@ -829,8 +830,7 @@ class PulseAnalyzer:
         # filter weighs it (1 / measurement variance, i.e. quality squared)
         wq = qual * qual
         accepted = float((acc * wq).sum() / wq.sum()) if wq.sum() > 1e-12 else 0.0
-        x = self.tracker.x
-        locked = x is not None
+        locked = self.tracker.locked
         rate, sd = self.tracker.rate
         prf = self.cfg.prf_hz
         accel, _ = self.tracker.accel
