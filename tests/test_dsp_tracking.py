@@ -597,10 +597,12 @@ def test_the_tracker_s_float_states_are_its_arrays_and_the_kalman_functions():
         x, P, fx, fP, last = before
         if x is not None and not st.outlier and tr.syncs == 0 and tr.x is not None \
                 and tr.relocks == 0 and tr.rechecks == 0:
+            assert P is not None and last is not None and tr.P is not None
             xp, Pp = kalman_predict(x, P, tr.settings.q_rate, k - last)
             xu, Pu = kalman_update(xp, Pp, z, tr.r(0.8))
             assert np.array_equal(xu, tr.x) and np.array_equal(Pu, tr.P)
             if fx is not None and tr.fx is not None:
+                assert fP is not None and tr.fP is not None
                 fxp, fPp = kalman_predict(fx, fP, tr.settings.q_rate, k - last,
                                           tr.settings.q_accel)
                 fxu, fPu = kalman_update(fxp, fPp, z, tr.r(0.8))
