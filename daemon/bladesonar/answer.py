@@ -144,10 +144,14 @@ class Decision:
 
     def __post_init__(self) -> None:
         # the words as members (a caller may give the word itself), the warnings a tuple
-        object.__setattr__(self, "direction", Direction(self.direction))
-        if self.rate_state is not None:
+        # (a member is kept as it is: the enum's call, which returns it, is the cost of
+        # the analyzer's many decisions)
+        if type(self.direction) is not Direction:
+            object.__setattr__(self, "direction", Direction(self.direction))
+        if self.rate_state is not None and type(self.rate_state) is not RateState:
             object.__setattr__(self, "rate_state", RateState(self.rate_state))
-        object.__setattr__(self, "warnings", tuple(self.warnings))
+        if type(self.warnings) is not tuple:
+            object.__setattr__(self, "warnings", tuple(self.warnings))
 
     def as_dict(self) -> dict[str, Any]:
         """``analyze``'s answer keys, the floats as published."""
