@@ -108,3 +108,23 @@ def test_an_estimate_is_a_decision_plus_window_and_reference():
     assert not e.turning and e.rotating is False and e.kind is Kind.STOPPED
     u = Estimate.unknown("starting", reference="cd")
     assert u.rotating is None and not u.known and u.fields()["reference"] == "cd"
+
+
+def test_replaced_is_dataclasses_replace():
+    """Decision.replaced (the analyzer's cheap copy with changes) gives the record
+    dataclasses.replace gives, words turned into members by __post_init__ as there, for
+    a Decision and an Estimate; a name that is no field is an error, as there."""
+    import dataclasses
+    d = Decision(Direction.SAME, "ccw", 1.0, 0.45, 27.0, 0.9, "ok", ("w",),
+                 RateState.SETTLED, 0.01)
+    for rec in (d, Estimate.from_decision(d, window_s=5.0, reference="abc")):
+        for ch in ({"mirror_checked": True, "doubtful_room": True},
+                   {"relative_rate": -0.5, "rate_hz": 0.2, "rpm": 12.0},
+                   {"direction": "reversed", "rate_state": "changing", "warnings": ["x"]}):
+            got, want = rec.replaced(**ch), dataclasses.replace(rec, **ch)
+            assert type(got) is type(want) and got == want
+            assert got.__dict__ == want.__dict__
+            assert isinstance(got.direction, Direction) and isinstance(got.warnings, tuple)
+        assert rec.mirror_checked is False          # the original untouched
+        with pytest.raises(TypeError, match="no field"):
+            rec.replaced(speed=1.0)

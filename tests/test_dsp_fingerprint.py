@@ -113,3 +113,25 @@ def test_a_pulse_on_a_flat_part_of_the_table_has_no_quality():
     distinct = table[5] + 0.05 * rng.standard_normal(n)
     a, b = fp.match(distinct, table), fp.match(distinct, table, floor=floor)
     assert a.quality[0] > 0.5 and b.quality[0] == a.quality[0]
+
+
+def test_moving_average_is_the_running_sum_s_and_exact_on_a_ramp():
+    """The envelope's smoothing summed shift by shift (short windows) or from a running
+    sum (long ones): both the centred mean of the edge-padded row. A ramp's interior is
+    its own moving average (closed form); against the running-sum form it used before,
+    the same values to rounding."""
+    rng = np.random.default_rng(5)
+    env = np.abs(rng.standard_normal((6, 90)))
+    for s in (2, 3, 5, 8, fp.DIRECT_SMOOTH, fp.DIRECT_SMOOTH + 3):
+        lo, hi = s // 2 + 1, s - s // 2 - 1
+        c = np.cumsum(np.concatenate([np.repeat(env[:, :1], lo, axis=1), env,
+                                      np.repeat(env[:, -1:], hi, axis=1)], axis=1), axis=1)
+        before = (c[:, s:] - c[:, :-s]) / s
+        got = fp._moving_average(env, s)
+        assert got.shape == env.shape
+        np.testing.assert_allclose(got, before, rtol=1e-13, atol=1e-14)
+        ramp = np.tile(np.arange(90, dtype=np.float64), (2, 1))
+        m = fp._moving_average(ramp, s)
+        a, b = s // 2, 90 - (s - s // 2 - 1)
+        np.testing.assert_allclose(m[:, a:b], ramp[:, a:b] + (0.0 if s % 2 else -0.5),
+                                   rtol=0, atol=1e-12)

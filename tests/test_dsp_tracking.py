@@ -576,3 +576,71 @@ def test_a_coasting_follower_does_not_cross_zero_against_its_track():
     assert max(abs(r) for r in rates) < 1e-12           # no direction, either way
     assert tr.fx is not None and tr.fx[1] == 0.0 and tr.fx[2] == 0.0
     assert tr.x is not None and tr.x[1] == pytest.approx(_hz(0.11))
+
+
+def test_the_tracker_s_float_states_are_its_arrays_and_the_kalman_functions():
+    """The tracker keeps its states as floats and gives them out as arrays (x, P, fx,
+    fP): a run through a ramp whose every step is checked against the array functions
+    (kalman_predict, then kalman_update, on the arrays it gave out: the same floats bit
+    for bit); the arrays are read-only (an in-place write would not reach the state);
+    and arrays set from outside are the state from then on."""
+    from bladesonar.dsp.tracking import ACCEL_LIMIT, kalman_predict
+    tr = Tracker(_ramp_settings())
+    rng = np.random.default_rng(8)
+    rate, phase, checked = 0.04, 0.3, 0
+    for k in range(400):
+        rate += 2e-5
+        phase = (phase + rate) % 1.0
+        z = float((phase + rng.normal(0, 0.01)) % 1.0)
+        before = (tr.x, tr.P, tr.fx, tr.fP, tr.last_k)
+        st = tr.update(k, z, 0.8)
+        x, P, fx, fP, last = before
+        if x is not None and not st.outlier and tr.syncs == 0 and tr.x is not None \
+                and tr.relocks == 0 and tr.rechecks == 0:
+            assert P is not None and last is not None and tr.P is not None
+            xp, Pp = kalman_predict(x, P, tr.settings.q_rate, k - last)
+            xu, Pu = kalman_update(xp, Pp, z, tr.r(0.8))
+            assert np.array_equal(xu, tr.x) and np.array_equal(Pu, tr.P)
+            if fx is not None and tr.fx is not None:
+                assert fP is not None and tr.fP is not None
+                fxp, fPp = kalman_predict(fx, fP, tr.settings.q_rate, k - last,
+                                          tr.settings.q_accel)
+                fxu, fPu = kalman_update(fxp, fPp, z, tr.r(0.8))
+                lim = ACCEL_LIMIT * tr.settings.max_accel       # (_limit_accel may clip it)
+                if abs(fxu[2]) <= lim:
+                    assert np.array_equal(fxu, tr.fx) and np.array_equal(fPu, tr.fP)
+                    checked += 1
+    assert checked > 300
+    assert tr.x is not None and tr.rate[0] == pytest.approx(rate, rel=0.05)
+    with pytest.raises(ValueError):
+        tr.x[0] = 0.5
+    tr.x, tr.P = np.array([0.25, 0.01]), np.diag([1e-4, 1e-8])
+    assert tr.track_rate == (0.01, 1e-8) and tr.x.tolist() == [0.25, 0.01]
+    tr.fx = None
+    assert tr.follower_phase is None and tr.accel == (0.0, float("inf"))
+
+
+def test_the_written_out_two_state_steps_are_the_matrix_forms():
+    """The constant-rate track's predict and update (written out on floats) are the
+    matrix forms, as the follower's are (above)."""
+    from bladesonar.dsp.tracking import kalman_predict, process_noise, transition
+    rng = np.random.default_rng(22)
+    for _ in range(200):
+        x = np.array([rng.uniform(0, 1), rng.normal(0, 0.05)])
+        L = rng.normal(size=(2, 2)) * np.array([1e-1, 1e-3])[:, None]
+        P = L @ L.T + np.diag([1e-12, 1e-14])
+        steps, q = int(rng.integers(1, 6)), 10 ** rng.uniform(-9, -5)
+        xp, Pp = kalman_predict(x, P, q, steps)
+        F = transition(steps, 2)
+        want_P = F @ P @ F.T + process_noise(steps, 2, q)
+        assert np.allclose(xp, [(x[0] + steps * x[1]) % 1.0, x[1]], rtol=1e-12, atol=1e-15)
+        assert np.allclose(Pp, want_P, rtol=1e-9, atol=1e-18)
+        z, r = float(rng.uniform(0, 1)), 10 ** rng.uniform(-5, -2)
+        xu, Pu = kalman_update(xp, Pp, z, r)
+        nu = (z - xp[0] + 0.5) % 1.0 - 0.5
+        K = Pp[:, 0] / (Pp[0, 0] + r)
+        A = np.eye(2) - np.outer(K, [1.0, 0.0])
+        want_x = xp + K * nu
+        want_x[0] %= 1.0
+        assert np.allclose(xu, want_x, rtol=1e-12, atol=1e-15)
+        assert np.allclose(Pu, A @ Pp @ A.T + r * np.outer(K, K), rtol=1e-8, atol=1e-18)

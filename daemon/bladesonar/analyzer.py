@@ -457,6 +457,17 @@ class PulseAnalyzer:
         pm, ps = self.motion.preview(feats, ends), self.still.preview(still_feats, ends)
         # Python's numbers, not numpy's scalars, in the loop (the same values)
         phases, quals = m.phase.tolist(), m.quality.tolist()
+        # each pulse's half lag-1 difference energy (the noise level), for the block at
+        # once: np.vecdot's rows are the vector products ``dd @ dd`` (the same bits)
+        # (a block's first pulse against the last one before it; xv has a pulse at least)
+        dd = np.empty_like(xv)
+        if self._prev is not None:
+            np.subtract(xv[0], self._prev, out=dd[0])
+        else:
+            dd[0] = 0.0                      # (not read: no pulse before it)
+        np.subtract(xv[1:], xv[:-1], out=dd[1:])
+        lag1 = np.vecdot(dd, dd).tolist()
+        del dd
         for i, (k, edge) in enumerate(zip(block.index[v].tolist(), block.edges[v].tolist(),
                                           strict=True)):
             if k in self._restart_at:
@@ -464,14 +475,14 @@ class PulseAnalyzer:
             st = self.tracker.update(k, phases[i], quals[i])
             self._follow_phase(k, st)
             tr = self.tracker
+            fph = tr.follower_phase
             self.aliases.push(k, dist[i], math.nan if not st.locked else
-                              tr.fx.item(0) if tr.fx is not None else st.phase)
+                              fph if fph is not None else st.phase)
             self._check_aliases()
             if self.aliases.count % RECHECK_EVERY == 0:
                 self._recheck_track()
             if self._prev is not None:
-                dd = xv[i] - self._prev
-                e = 0.5 * float(dd @ dd)
+                e = 0.5 * lag1[i]
                 self._noise = e if not math.isfinite(self._noise) else (
                     self._noise + (e - self._noise) / self.window)
             self._prev = xv[i]
@@ -684,12 +695,13 @@ class PulseAnalyzer:
         sees it too (1.5 s of 0.02 Hz read 7.7 against its 1.15 for rest)."""
         tr = self.tracker
         st = tr.settings
-        if tr.x is None or tr.P is None or tr.start_k is None or tr.last_k is None \
+        if not tr.locked or tr.start_k is None or tr.last_k is None \
                 or tr.last_k - tr.start_k < 2 * st.init_pulses:
             return False
         floor = self._cycles_per_pulse(0.5 * self._decide_settings.rate_floor_hz)
-        sd = math.sqrt(max(tr.P.item(1, 1), 0.0))
-        if abs(tr.x.item(1)) + 2.0 * sd >= floor:
+        rate, var = tr.track_rate
+        sd = math.sqrt(max(var, 0.0))
+        if abs(rate) + 2.0 * sd >= floor:
             return False
         recent = self._recent[-st.init_pulses:]
         w = [q * q for _, q in recent]
@@ -731,13 +743,13 @@ class PulseAnalyzer:
         if d.direction not in WAYS or d.relative_rate is None:
             return d
         tr = self.tracker
-        if tr.x is None:
+        if not tr.locked:
             return d
         now, _ = tr.rate_now
         rate = now
         if d.rate_state == RateState.SETTLED:
             mean = self.window_rate()
-            steady = mean if mean is not None else tr.x.item(1)
+            steady = mean if mean is not None else tr.track_rate[0]
             if steady * now > 0 and abs(steady - now) <= SETTLED_AGREE * abs(steady):
                 rate = steady
         if not (math.isfinite(rate) and rate * d.relative_rate > 0):
@@ -748,7 +760,7 @@ class PulseAnalyzer:
             # a direction is claimed, so the fan turns at least that fast: the latest rate
             # has drifted under it; the decision's own rate stands
             return d
-        return replace(d, relative_rate=rel, rate_hz=hz, rpm=hz * 60.0)
+        return d.replaced(relative_rate=rel, rate_hz=hz, rpm=hz * 60.0)
 
     def take_events(self) -> list[Event]:
         """Events confirmed since the last call (the daemon publishes them)."""
@@ -776,9 +788,9 @@ class PulseAnalyzer:
         tr = self.tracker
         if not tr.locked or self.aliases.verified == tr.identity:
             return
-        assert tr.x is not None and tr.P is not None and tr.last_k is not None   # locked
-        rate = tr.x.item(1)
-        sd = math.sqrt(max(tr.P.item(1, 1), 0.0))
+        assert tr.last_k is not None   # locked
+        rate, var = tr.track_rate
+        sd = math.sqrt(max(var, 0.0))
         span = int(tr.last_k - tr.start_k) + 1 if tr.start_k is not None else self.window
         fracs = aliasing.near_fractions(rate, span=span, rate_std=sd,
                                         accel=self._clear_accel())
@@ -818,8 +830,7 @@ class PulseAnalyzer:
         # filter weighs it (1 / measurement variance, i.e. quality squared)
         wq = qual * qual
         accepted = float((acc * wq).sum() / wq.sum()) if wq.sum() > 1e-12 else 0.0
-        x = self.tracker.x
-        locked = x is not None
+        locked = self.tracker.locked
         rate, sd = self.tracker.rate
         prf = self.cfg.prf_hz
         accel, _ = self.tracker.accel
@@ -850,8 +861,8 @@ class PulseAnalyzer:
             # tracked rate is the latest and lags it); a changing one is the follower's
             args["rate"] = mean
             d = decide(**args)
-        d = replace(d, mirror_checked=locked and self.aliases.mirror_checked(self.tracker),
-                    doubtful_room=self.aliases.doubtful)
+        d = d.replaced(mirror_checked=locked and self.aliases.mirror_checked(self.tracker),
+                       doubtful_room=self.aliases.doubtful)
         misfit = self.scale_misfit
         if misfit and d.direction in WAYS:
             return Decision(Direction.UNKNOWN, None, d.relative_rate, d.rate_hz, d.rpm,

@@ -47,6 +47,7 @@ from . import device as dev
 from .analytic import analytic_magnitude
 from .fingerprint import envelope_features
 from .rangedoppler import band_limited
+from .stats import median
 
 #: Lags (pulses) of the correlation: at least MIN_LAGS for a call, at most MAX_LAG. A
 #: slow fan's glint lasts many pulses and moves a fraction of a sample per pulse, so its
@@ -226,7 +227,8 @@ def envelope_image(res: np.ndarray, ok: np.ndarray, static: np.ndarray, prf: flo
         sq = np.zeros(L)
         for i in np.nonzero(ok)[0]:      # np.mean(env[ok] ** 2, axis=0), no copies
             sq += env[i] * env[i]
-        moving = float(np.median(np.sqrt(sq / np.count_nonzero(ok))))
+        # (stats.median: np.median's values without importing numpy.ma)
+        moving = float(median(np.sqrt(sq / np.count_nonzero(ok))))
         s_env = np.convolve(analytic_magnitude(static[None, :])[0], np.ones(5) / 5.0,
                             mode="same")
         if moving > 0:

@@ -443,8 +443,7 @@ class AliasWatch:
             # 'ambiguous' between the rate and its mirror for 1.2 s)
             self.verdict, self.note = None, ""
             return
-        assert tr.x is not None and tr.P is not None   # locked
-        rate = tr.x.item(1)
+        rate, var = tr.track_rate       # (locked)
         jumped = not abs(rate - self._rate) <= 0.25 / MAX_Q
         # soon after a lock the window since it is short and its verdict young: look again
         # every 8 pulses until it spans half the window
@@ -459,7 +458,7 @@ class AliasWatch:
         idx, k = self._window_of(tr)
         if len(k) < 2:
             return
-        sd = math.sqrt(max(tr.P.item(1, 1), 0.0))
+        sd = math.sqrt(max(var, 0.0))
         span = int(k[-1] - k[0]) + 1
         fracs = near_fractions(rate, span=span, rate_std=sd, accel=accel)
         if not fracs:
@@ -504,8 +503,7 @@ class AliasWatch:
         new = self.count - self._mirror_at
         if new < (self._every if confirmed else 8):
             return False
-        assert tr.x is not None
-        w = tr.x.item(1)
+        w, _ = tr.track_rate            # (locked)
         if abs(w) * (self.window // 2) < MIRROR_MIN_SWEEP:
             return self._no_verdict()     # the track stands (near zero): nothing to tell
         idx, k = self._window_of(tr)

@@ -94,14 +94,42 @@ def _envelope(y: np.ndarray, smooth: int, band: float) -> np.ndarray:
     """envelope_features' envelope kind on mean-removed rows."""
     env = analytic_magnitude(y, band)
     if smooth > 1:
-        # edge padding written out: np.pad(mode="edge") cost a tenth of the daemon's
-        # analysis on these small blocks (the same values)
-        lo, hi = smooth // 2 + 1, smooth - smooth // 2 - 1
-        c = np.cumsum(np.concatenate([np.repeat(env[:, :1], lo, axis=1), env,
-                                      np.repeat(env[:, -1:], hi, axis=1)], axis=1), axis=1)
-        env = (c[:, smooth:] - c[:, :-smooth]) / smooth
-    centred: np.ndarray = env - env.mean(axis=1, keepdims=True)
-    return centred
+        env = _moving_average(env, smooth)
+    env -= env.mean(axis=1, keepdims=True)
+    return env
+
+
+#: Longest moving average summed shift by shift (_moving_average); a longer one is taken
+#: from a running sum.
+DIRECT_SMOOTH = 16
+
+
+def _moving_average(env: np.ndarray, smooth: int) -> np.ndarray:
+    """The centred moving average of ``smooth`` samples along each row, the rows' end
+    values repeated beyond their ends. A short one (the default 5) as the sum of
+    ``smooth`` shifted copies: whole-row vector additions, where a running sum
+    (``cumsum``) is one long chain of dependent additions, and most of the envelope's
+    cost beside its FFTs. The two differ in the last bits only (the shifted sum has no
+    running sum's cancellation)."""
+    n, L = env.shape
+    lo = smooth // 2        # (and smooth - lo - 1 after the row)
+    # edge padding written out: np.pad(mode="edge") cost a tenth of the daemon's
+    # analysis on small blocks
+    padded = np.empty((n, L + smooth - 1))
+    padded[:, :lo] = env[:, :1]
+    padded[:, lo:lo + L] = env
+    padded[:, lo + L:] = env[:, -1:]
+    if smooth > DIRECT_SMOOTH:
+        c = np.cumsum(padded, axis=1)
+        out: np.ndarray = np.empty((n, L))
+        out[:, 0] = c[:, smooth - 1]
+        np.subtract(c[:, smooth:], c[:, :-smooth], out=out[:, 1:])
+    else:
+        out = padded[:, :L].copy()
+        for m in range(1, smooth):
+            out += padded[:, m:m + L]
+    out /= smooth
+    return out
 
 
 def fold_phases(k: np.ndarray, cycles_per_pulse: float, k0: float = 0.0) -> np.ndarray:

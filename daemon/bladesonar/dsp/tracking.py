@@ -110,6 +110,77 @@ def process_noise(steps: float, dim: int, q: float, q_accel: float = 0.0) -> np.
     return Q
 
 
+#: A filter's state as plain floats (the tracker's per-pulse path: no numpy array is
+#: made at each step): the state vector, and the covariance row by row.
+Vec = tuple[float, ...]
+
+
+def _predict2(x: Vec, P: Vec, q: float, n: float) -> tuple[Vec, Vec]:
+    """kalman_predict of the constant-rate model on floats: closed forms."""
+    ph, w = x
+    p00, p01, _, p11 = P
+    a00 = p00 + 2 * n * p01 + n * n * p11 + q * n ** 3 / 3.0
+    a01 = p01 + n * p11 + q * n * n / 2.0
+    return ((ph + n * w) % 1.0, w), (a00, a01, a01, p11 + q * n)
+
+
+def _predict3(x: Vec, P: Vec, q: float, n: float, qa: float) -> tuple[Vec, Vec]:
+    """kalman_predict of the rate follower's model on floats: F P F^T + Q written out (F =
+    transition, Q = process_noise), no matrix products; tests compare it with them."""
+    h = 0.5 * n * n
+    ph, w, a = x
+    p00, p01, p02, _, p11, p12, _, _, p22 = P
+    r00, r01, r02 = p00 + n * p01 + h * p02, p01 + n * p11 + h * p12, \
+        p02 + n * p12 + h * p22
+    r11, r12 = p11 + n * p12, p12 + n * p22
+    n2, n3 = n * n, n * n * n
+    a00 = r00 + n * r01 + h * r02 + q * n3 / 3.0 + qa * n2 * n3 / 20.0
+    a01 = r01 + n * r02 + q * n2 / 2.0 + qa * n2 * n2 / 8.0
+    a02 = r02 + qa * n3 / 6.0
+    a11 = r11 + n * r12 + q * n + qa * n3 / 3.0
+    a12 = r12 + qa * n2 / 2.0
+    a22 = p22 + qa * n
+    return ((ph + n * w + h * a) % 1.0, w + n * a, a), \
+        (a00, a01, a02, a01, a11, a12, a02, a12, a22)
+
+
+def _innovation(x: Vec, P: Vec, z: float, r: float) -> tuple[float, float]:
+    """innovation on floats."""
+    return wrap(float(z) - x[0]), P[0] + float(r)
+
+
+def _update(x: Vec, P: Vec, z: float, r: float) -> tuple[Vec, Vec]:
+    """kalman_update of either model on floats (Joseph form, symmetrised, written out)."""
+    nu, s = _innovation(x, P, z, r)
+    if not s > 0:
+        return x, P
+    if len(x) == 2:
+        p00, p01, _, p11 = P
+        k0, k1 = p00 / s, p01 / s
+        a, c = 1.0 - k0, -k1
+        n00 = a * a * p00 + k0 * k0 * r
+        n01 = a * (c * p00 + p01) + k0 * k1 * r
+        n11 = c * c * p00 + 2 * c * p01 + p11 + k1 * k1 * r
+        return ((x[0] + k0 * nu) % 1.0, x[1] + k1 * nu), (n00, n01, n01, n11)
+    # (I - K H) P (I - K H)^T + K r K^T written out: entry (i, j) is
+    # p_ij - k_i p_0j - (p_i0 - k_i p_00) k_j + r k_i k_j
+    p = [P[0:3], P[3:6], P[6:9]]
+    k = [p[0][0] / s, p[1][0] / s, p[2][0] / s]
+    col = [p[i][0] - k[i] * p[0][0] for i in range(3)]
+    m = [[p[i][j] - k[i] * p[0][j] - col[i] * k[j] + r * k[i] * k[j] for j in range(3)]
+         for i in range(3)]
+    for i in range(3):
+        for j in range(i):
+            m[i][j] = m[j][i] = 0.5 * (m[i][j] + m[j][i])
+    return ((x[0] + k[0] * nu) % 1.0, x[1] + k[1] * nu, x[2] + k[2] * nu), \
+        (*m[0], *m[1], *m[2])
+
+
+def _floats(a: np.ndarray) -> Vec:
+    """An array's entries as floats, row by row."""
+    return tuple(np.asarray(a, dtype=np.float64).ravel().tolist())
+
+
 def kalman_predict(x: np.ndarray, P: np.ndarray, q: float, steps: int = 1,
                    q_accel: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Propagate ``steps`` pulses (gaps after lost pulses included).
@@ -128,36 +199,11 @@ def kalman_predict(x: np.ndarray, P: np.ndarray, q: float, steps: int = 1,
         Acceleration noise variance per pulse (3-state model only).
     """
     dim = len(x)
-    if dim == 2:
-        # the default tracker's per-pulse path: closed forms, no matrix products
-        n = float(steps)
-        ph, w = x.item(0), x.item(1)
-        p00, p01, p11 = P.item(0, 0), P.item(0, 1), P.item(1, 1)
-        a00 = p00 + 2 * n * p01 + n * n * p11 + q * n ** 3 / 3.0
-        a01 = p01 + n * p11 + q * n * n / 2.0
-        return (np.array([(ph + n * w) % 1.0, w]),
-                np.array([[a00, a01], [a01, p11 + q * n]]))
-    if dim == 3:
-        # the rate follower's per-pulse path: F P F^T + Q written out (F = transition,
-        # Q = process_noise), no matrix products; tests compare it with them
-        n = float(steps)
-        h = 0.5 * n * n
-        ph, w, a = x.item(0), x.item(1), x.item(2)
-        p00, p01, p02 = P.item(0, 0), P.item(0, 1), P.item(0, 2)
-        p11, p12, p22 = P.item(1, 1), P.item(1, 2), P.item(2, 2)
-        r00, r01, r02 = p00 + n * p01 + h * p02, p01 + n * p11 + h * p12, \
-            p02 + n * p12 + h * p22
-        r11, r12 = p11 + n * p12, p12 + n * p22
-        n2, n3 = n * n, n * n * n
-        qa = q_accel
-        a00 = r00 + n * r01 + h * r02 + q * n3 / 3.0 + qa * n2 * n3 / 20.0
-        a01 = r01 + n * r02 + q * n2 / 2.0 + qa * n2 * n2 / 8.0
-        a02 = r02 + qa * n3 / 6.0
-        a11 = r11 + n * r12 + q * n + qa * n3 / 3.0
-        a12 = r12 + qa * n2 / 2.0
-        a22 = p22 + qa * n
-        return (np.array([(ph + n * w + h * a) % 1.0, w + n * a, a]),
-                np.array([[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]]))
+    if dim in (2, 3):
+        # the tracker's and the follower's per-pulse paths (on floats: _predict2/3)
+        got = _predict2(_floats(x), _floats(P), q, float(steps)) if dim == 2 else \
+            _predict3(_floats(x), _floats(P), q, float(steps), q_accel)
+        return np.array(got[0]), np.array(got[1]).reshape(dim, dim)
     F = transition(steps, dim)
     xn = F @ np.asarray(x, dtype=np.float64)
     xn[0] %= 1.0
@@ -176,28 +222,9 @@ def kalman_update(x: np.ndarray, P: np.ndarray, z: float, r: float
     nu, s = innovation(x, P, z, r)
     if not s > 0:
         return x, P
-    if len(x) == 2:
-        p00, p01, p11 = P.item(0, 0), P.item(0, 1), P.item(1, 1)
-        k0, k1 = p00 / s, p01 / s
-        a, c = 1.0 - k0, -k1
-        n00 = a * a * p00 + k0 * k0 * r
-        n01 = a * (c * p00 + p01) + k0 * k1 * r
-        n11 = c * c * p00 + 2 * c * p01 + p11 + k1 * k1 * r
-        return (np.array([(x.item(0) + k0 * nu) % 1.0, x.item(1) + k1 * nu]),
-                np.array([[n00, n01], [n01, n11]]))
-    if len(x) == 3:
-        # (I - K H) P (I - K H)^T + K r K^T written out: entry (i, j) is
-        # p_ij - k_i p_0j - (p_i0 - k_i p_00) k_j + r k_i k_j
-        p = P.tolist()
-        k = [p[0][0] / s, p[1][0] / s, p[2][0] / s]
-        col = [p[i][0] - k[i] * p[0][0] for i in range(3)]
-        m = [[p[i][j] - k[i] * p[0][j] - col[i] * k[j] + r * k[i] * k[j] for j in range(3)]
-             for i in range(3)]
-        for i in range(3):
-            for j in range(i):
-                m[i][j] = m[j][i] = 0.5 * (m[i][j] + m[j][i])
-        return (np.array([(x.item(0) + k[0] * nu) % 1.0, x.item(1) + k[1] * nu,
-                          x.item(2) + k[2] * nu]), np.array(m))
+    if len(x) in (2, 3):
+        xf, Pf = _update(_floats(x), _floats(P), z, r)
+        return np.array(xf), np.array(Pf).reshape(len(x), len(x))
     K = P[:, 0] / s
     # (I - K H) P (I - K H)^T + K r K^T with H = [1, 0, ...]
     A = np.eye(len(x))
@@ -404,8 +431,10 @@ class Tracker:
     """
 
     settings: TrackerSettings
-    x: np.ndarray | None = None
-    P: np.ndarray | None = None
+    #: the track's state (phase, rate) and covariance (row by row) as floats, None while
+    #: unlocked: :attr:`x` and :attr:`P` give them as arrays
+    _x: Vec | None = None
+    _P: Vec | None = None
     last_k: int | None = None
     outlier_run: int = 0
     outliers: int = 0
@@ -417,8 +446,10 @@ class Tracker:
     start_k: int | None = None   # first pulse of the matches the current track began from
     locked_k: int | None = None  # pulse at which the current track locked
     relocks: int = 0             # moves of the track to another line (alias checks)
-    fx: np.ndarray | None = None  # the rate follower's state (phase, rate, acceleration)
-    fP: np.ndarray | None = None
+    #: the rate follower's state (phase, rate, acceleration) and covariance, as floats:
+    #: :attr:`fx` and :attr:`fP`
+    _fx: Vec | None = None
+    _fP: Vec | None = None
     evidence: float = 0.0        # log likelihood ratio follower : track, recent matches
     rechecks: int = 0            # tracks given up because another line fit the matches
     syncs: int = 0               # times the track took the follower's line (_follower_takes)
@@ -431,14 +462,80 @@ class Tracker:
     # (weight, accepted) of _recent
     _accepted: deque[tuple[float, bool]] = field(default_factory=deque)
     _followed: bool = False      # the last match was one the reported follower expected
+    #: the arrays last given out for the float states (x, P, fx, fP): (state, array)
+    _arrays: dict[str, tuple[Vec, np.ndarray]] = field(default_factory=dict, repr=False,
+                                                       compare=False)
 
     def __post_init__(self) -> None:
         self._recent = deque(maxlen=self.settings.init_pulses)
         self._accepted = deque(maxlen=self.settings.init_pulses)
 
+    def _array(self, name: str, dim: int, square: bool) -> np.ndarray | None:
+        """The float state ``name`` as a read-only array (made once per state)."""
+        v: Vec | None = getattr(self, name)
+        if v is None:
+            return None
+        got = self._arrays.get(name)
+        if got is not None and got[0] is v:
+            return got[1]
+        a = np.array(v).reshape((dim, dim) if square else (dim,))
+        a.flags.writeable = False
+        self._arrays[name] = (v, a)
+        return a
+
+    # The states as arrays, for readers and for tests that set a state; the per-pulse
+    # path works on the floats (a Kalman step made four small arrays at every pulse).
+    @property
+    def x(self) -> np.ndarray | None:
+        """The track's state [phase (cycles), rate (cycles per pulse)], None unlocked."""
+        return self._array("_x", 2, False)
+
+    @x.setter
+    def x(self, value: np.ndarray | None) -> None:
+        self._x = None if value is None else _floats(value)
+
+    @property
+    def P(self) -> np.ndarray | None:
+        """The track's covariance, 2x2."""
+        return self._array("_P", 2, True)
+
+    @P.setter
+    def P(self, value: np.ndarray | None) -> None:
+        self._P = None if value is None else _floats(value)
+
+    @property
+    def fx(self) -> np.ndarray | None:
+        """The follower's state [phase, rate, rate change per pulse], None without one."""
+        return self._array("_fx", 3, False)
+
+    @fx.setter
+    def fx(self, value: np.ndarray | None) -> None:
+        self._fx = None if value is None else _floats(value)
+
+    @property
+    def fP(self) -> np.ndarray | None:
+        """The follower's covariance, 3x3."""
+        return self._array("_fP", 3, True)
+
+    @fP.setter
+    def fP(self, value: np.ndarray | None) -> None:
+        self._fP = None if value is None else _floats(value)
+
+    @property
+    def follower_phase(self) -> float | None:
+        """The follower's phase (cycles), None without a follower."""
+        return None if self._fx is None else self._fx[0]
+
+    @property
+    def track_rate(self) -> tuple[float, float]:
+        """The constant-rate track's (rate, its variance), cycles per pulse; NaN unlocked."""
+        if self._x is None or self._P is None:
+            return math.nan, math.nan
+        return self._x[1], self._P[3]
+
     @property
     def locked(self) -> bool:
-        return self.x is not None
+        return self._x is not None
 
     @property
     def identity(self) -> TrackId:
@@ -449,16 +546,16 @@ class Tracker:
     def accel(self) -> tuple[float, float]:
         """The follower's (rate change per pulse, its standard deviation), cycles per
         pulse^2; (0, inf) without a lock or a follower."""
-        if self.x is None or self.fx is None:
+        if self._x is None or self._fx is None:
             return 0.0, math.inf
-        assert self.fP is not None   # set with fx
-        return self.fx.item(2), math.sqrt(max(self.fP.item(2, 2), 0.0))
+        assert self._fP is not None   # set with fx
+        return self._fx[2], math.sqrt(max(self._fP[8], 0.0))
 
     @property
     def follower_weight(self) -> float:
         """How much the recent matches favour the follower over the constant-rate track
         (0..1, a posterior model probability with forgetting)."""
-        if self.fx is None:
+        if self._fx is None:
             return 0.0
         e = max(min(self.evidence, 50.0), -50.0)
         return 1.0 / (1.0 + math.exp(-e))
@@ -470,25 +567,25 @@ class Tracker:
         changing, and the follower coasts through the blind part of a blade period on the
         rate's change), else the quieter constant-rate track's (a steady fan: a blend
         made its rate wander by 1.6 % at the 95th percentile, the track's 0.7 %)."""
-        if self.x is None:
+        if self._x is None:
             return float("nan"), float("nan")
         if self.follower_weight > 0.5:
-            assert self.fx is not None and self.fP is not None   # a weight needs a follower
-            return self.fx.item(1), math.sqrt(max(self.fP.item(1, 1), 0.0))
-        assert self.P is not None   # set with x
-        return self.x.item(1), math.sqrt(max(self.P.item(1, 1), 0.0))
+            assert self._fx is not None and self._fP is not None   # a weight needs a follower
+            return self._fx[1], math.sqrt(max(self._fP[4], 0.0))
+        assert self._P is not None   # set with x
+        return self._x[1], math.sqrt(max(self._P[3], 0.0))
 
     @property
     def rate_now(self) -> tuple[float, float]:
         """The latest rate and its standard deviation (cycles per pulse): the follower's,
         which follows a change of speed without the constant-rate model's lag (the
         track's without a follower)."""
-        if self.x is None:
+        if self._x is None:
             return float("nan"), float("nan")
-        if self.fx is None or self.fP is None:
-            assert self.P is not None
-            return self.x.item(1), math.sqrt(max(self.P.item(1, 1), 0.0))
-        return self.fx.item(1), math.sqrt(max(self.fP.item(1, 1), 0.0))
+        if self._fx is None or self._fP is None:
+            assert self._P is not None
+            return self._x[1], math.sqrt(max(self._P[3], 0.0))
+        return self._fx[1], math.sqrt(max(self._fP[4], 0.0))
 
     def limit_rate(self, bound: float) -> bool:
         """Set :attr:`rate_bound` (cycles per pulse) and give up a track faster than it by
@@ -497,11 +594,11 @@ class Tracker:
         on the weak matches of a fan at rest and claim the next start for its own
         direction."""
         self.rate_bound = bound
-        if self.x is None or self.P is None or not math.isfinite(bound):
+        if self._x is None or self._P is None or not math.isfinite(bound):
             return False
-        if abs(self.x.item(1)) - 2.0 * math.sqrt(max(self.P.item(1, 1), 0.0)) <= bound:
+        if abs(self._x[1]) - 2.0 * math.sqrt(max(self._P[3], 0.0)) <= bound:
             return False
-        self.x = self.P = self.fx = self.fP = None
+        self._x = self._P = self._fx = self._fP = None
         self.outlier_run = 0
         self.given_up += 1
         return True
@@ -511,23 +608,21 @@ class Tracker:
         follower's rate change is kept that uncertain. At rest its variance would shrink
         to nothing, and the follower would then take up a start over seconds, its rate
         lagging the fan's."""
-        if self.fP is not None and self.settings.max_accel > 0:
+        if self._fP is not None and self.settings.max_accel > 0:
             v = self.settings.max_accel ** 2
-            if self.fP.item(2, 2) < v:
-                self.fP = self.fP.copy()
-                self.fP[2, 2] = v
+            if self._fP[8] < v:
+                self._fP = (*self._fP[:8], v)
 
     def _limit_accel(self) -> None:
         """No fan changes speed faster than ACCEL_LIMIT times the steepest ramp: the
         follower's rate change is held within it (the estimate projected onto the
         bound, its variance kept), so that a lock taken on the curve of a spin-up cannot
         start it far steeper than any fan ramps."""
-        if self.fx is None or not self.settings.max_accel > 0:
+        if self._fx is None or not self.settings.max_accel > 0:
             return
         lim = ACCEL_LIMIT * self.settings.max_accel
-        if abs(self.fx.item(2)) > lim:
-            self.fx = self.fx.copy()
-            self.fx[2] = math.copysign(lim, self.fx.item(2))
+        if abs(self._fx[2]) > lim:
+            self._fx = (self._fx[0], self._fx[1], math.copysign(lim, self._fx[2]))
 
     def _coasts(self, k: int, quality: float) -> bool:
         """Whether a weak match (under ``COAST_BELOW``) at pulse ``k`` is passed over rather
@@ -545,14 +640,14 @@ class Tracker:
         st = self.settings
         if quality >= COAST_BELOW or st.coast_max <= 0 or self.clear_credit < COAST_STREAK:
             return False
-        assert self.x is not None
-        if abs(self.x.item(1)) < st.coast_min_rate:
+        assert self._x is not None
+        if abs(self._x[1]) < st.coast_min_rate:
             # a track slower than the floor claims no direction, and near rest a blade
             # standing at a blind angle is the stop a coast must not hide; a follower
             # coasting there would carry a spin-down's deceleration through zero, to a
             # line the other way
             return False
-        period = 1.0 / max(abs(self.x.item(1)), 1e-9)
+        period = 1.0 / max(abs(self._x[1]), 1e-9)
         return self.clear_k is not None and \
             k - self.clear_k <= min(COAST_SHARE * period, st.coast_max)
 
@@ -565,10 +660,9 @@ class Tracker:
         the zero of a slow reversal the track's rate is the old direction's, seconds
         stale, and reported it would renew the old direction and cut the wait for the
         reversal short (a reversal read as a stop and a start)."""
-        if self.fx is not None and self.x is not None \
-                and self.fx.item(1) * self.x.item(1) < 0.0:
-            self.fx = self.fx.copy()
-            self.fx[1] = self.fx[2] = 0.0
+        if self._fx is not None and self._x is not None \
+                and self._fx[1] * self._x[1] < 0.0:
+            self._fx = (self._fx[0], 0.0, 0.0)
 
     def _rejects(self, nu: float, s: float, slew: float) -> bool:
         """Whether an innovation ``nu`` (variance ``s``) lies outside the gate, or further
@@ -601,14 +695,13 @@ class Tracker:
         """(Re)start the follower on the track's line, its acceleration unknown up to the
         steepest ramp."""
         st = self.settings
-        if st.q_accel <= 0 or self.x is None:
-            self.fx = self.fP = None
+        if st.q_accel <= 0 or self._x is None:
+            self._fx = self._fP = None
             return
-        self.fx = np.array([self.x.item(0), self.x.item(1), 0.0])
-        P = np.zeros((3, 3))
-        P[:2, :2] = self.P
-        P[2, 2] = st.max_accel ** 2
-        self.fP = P
+        assert self._P is not None   # set with x
+        self._fx = (self._x[0], self._x[1], 0.0)
+        p00, p01, p10, p11 = self._P
+        self._fP = (p00, p01, 0.0, p10, p11, 0.0, 0.0, 0.0, st.max_accel ** 2)
         self.evidence = 0.0
 
     def _follow_from_matches(self) -> None:
@@ -618,11 +711,11 @@ class Tracker:
         up to half their span behind, and the follower would start there with no change.
         The change has the steepest ramp as its prior (:func:`curved_start`)."""
         st = self.settings
-        if self.fx is None or self.x is None or len(self._recent) < 4:
+        if self._fx is None or self._x is None or len(self._recent) < 4:
             return
         k, z, q = (np.array(v, dtype=np.float64) for v in zip(*self._recent, strict=True))
         var = np.array([self.r(qq) for qq in q])
-        got = curved_start(k, z, var, self.x.item(1), self.x.item(0), st.max_accel)
+        got = curved_start(k, z, var, self._x[1], self._x[0], st.max_accel)
         if got is None:
             return
         self.fx, self.fP = got
@@ -680,8 +773,8 @@ class Tracker:
         var = min(max(-2.0 * math.log(max(coh, 1e-9)) / (2 * math.pi) ** 2, 1e-8), 0.1)
         n = float(len(k))
         span = max(float(k[-1] - k[0]), 1.0)
-        self.x = np.array([phase, rate])
-        self.P = np.array([[4.0 * var / n, 0.0], [0.0, 12.0 * var / (n * span * span)]])
+        self._x = (float(phase), float(rate))
+        self._P = (4.0 * var / n, 0.0, 0.0, 12.0 * var / (n * span * span))
         self.last_k = int(k[-1])
         self.start_k = int(k[0])
         self.locked_k = int(k[-1])
@@ -701,7 +794,7 @@ class Tracker:
         about alike (:func:`aliasing.alias_rates`); a best fit on one of them is left to
         the alias check, which weighs them on the whole window."""
         st = self.settings
-        if self.x is None or len(self._accepted) < st.init_pulses or not self._informative():
+        if self._x is None or len(self._accepted) < st.init_pulses or not self._informative():
             return False
         wsum = sum(w for w, _ in self._accepted)
         if not wsum > 1e-12 or sum(w for w, a in self._accepted if a) >= 0.5 * wsum:
@@ -714,7 +807,7 @@ class Tracker:
             return False
         k, rate, phase, coh = self._fit()
         span = max(float(k[-1] - k[0]), 1.0)
-        if coh < st.min_coherence or abs(rate - self.x.item(1)) <= 1.0 / span:
+        if coh < st.min_coherence or abs(rate - self._x[1]) <= 1.0 / span:
             return False
         if aliases is not None and len(aliases) and \
                 float(np.min(np.abs(np.asarray(aliases) - rate))) <= 1.0 / span:
@@ -733,10 +826,9 @@ class Tracker:
     def relock(self, rate: float, phase: float, k: int) -> None:
         """Move a locked track to another line (rate, phase at pulse ``k``), keeping its
         covariance: an alias check found the line the matches alone could not single out."""
-        if self.x is None:
+        if self._x is None:
             return
-        self.x = self.x.copy()
-        self.x[0], self.x[1] = float(phase) % 1.0, float(rate)
+        self._x = (float(phase) % 1.0, float(rate))
         self._accepted.clear()
         self._follow_from_track()
         self.last_k = int(k)
@@ -748,46 +840,46 @@ class Tracker:
         st = self.settings
         self._recent.append((int(k), float(z), max(float(quality), 0.0)))
         outlier = False
-        if self.x is None:
+        if self._x is None:
             self._init()
         else:
-            assert self.P is not None and self.last_k is not None   # set with x
-            steps = max(int(k) - int(self.last_k), 1)
-            self.x, self.P = kalman_predict(self.x, self.P, st.q_rate, steps)
-            if self.fx is not None:
-                assert self.fP is not None   # set with fx
-                self.fx, self.fP = kalman_predict(self.fx, self.fP, st.q_rate, steps,
-                                                  st.q_accel)
+            assert self._P is not None and self.last_k is not None   # set with x
+            steps = float(max(int(k) - int(self.last_k), 1))
+            self._x, self._P = _predict2(self._x, self._P, st.q_rate, steps)
+            if self._fx is not None:
+                assert self._fP is not None   # set with fx
+                self._fx, self._fP = _predict3(self._fx, self._fP, st.q_rate, steps,
+                                               st.q_accel)
             self.last_k = int(k)
             if self._coasts(int(k), quality):
                 self.coasted += 1
                 self._keep_follower_on_side()
             else:
                 outlier = self._measure(int(k), z, quality)
-        if self.x is not None:
+        if self._x is not None:
             w = max(float(quality), 0.0)
             self._accepted.append((w * w, not outlier or self._followed))
             self._followed = False
-        if self.x is None:
+        if self._x is None:
             return TrackState(int(k), float(z), float(quality), float("nan"), float("nan"),
                               float("nan"), False, outlier, self.coherence)
-        assert self.P is not None   # set with x
-        return TrackState(int(k), float(z), float(quality), self.x.item(0), self.x.item(1),
-                          math.sqrt(max(self.P.item(1, 1), 0.0)), True, outlier,
+        assert self._P is not None   # set with x
+        return TrackState(int(k), float(z), float(quality), self._x[0], self._x[1],
+                          math.sqrt(max(self._P[3], 0.0)), True, outlier,
                           self.coherence)
 
     def _measure(self, k: int, z: float, quality: float) -> bool:
         """Gate and fold in one match on a track predicted to its pulse; True if it was
         an outlier."""
         st = self.settings
-        assert self.x is not None and self.P is not None   # a locked track
+        assert self._x is not None and self._P is not None   # a locked track
         clear = quality >= st.min_info
         r = self.r(quality)
-        nu, s = innovation(self.x, self.P, z, r)
-        slew = st.max_rate + 3.0 * math.sqrt(max(self.P.item(1, 1), 0.0))
+        nu, s = _innovation(self._x, self._P, z, r)
+        slew = st.max_rate + 3.0 * math.sqrt(max(self._P[3], 0.0))
         # the follower's innovation, once: a sync below changes the track, not the follower
-        f = innovation(self.fx, self.fP, z, r) \
-            if self.fx is not None and self.fP is not None else None
+        f = _innovation(self._fx, self._fP, z, r) \
+            if self._fx is not None and self._fP is not None else None
         expected = self._follower_expects(f, slew)
         refused = expected is False
         # a match the reported follower expects is no sign against the track's line
@@ -797,29 +889,31 @@ class Tracker:
             # the constant-rate track lags a ramp the follower is on: it takes the
             # follower's line instead of counting the match out (a run of such outliers
             # would give the track, and the follower with it, up in mid-ramp)
-            assert self.fx is not None and self.fP is not None
-            self.x = np.array([self.fx.item(0), self.fx.item(1)])
-            self.P = 0.5 * (self.fP[:2, :2] + self.fP[:2, :2].T)
+            assert self._fx is not None and self._fP is not None
+            self._x = (self._fx[0], self._fx[1])
+            f00, f01, _, f10, f11 = self._fP[:5]
+            self._P = (0.5 * (f00 + f00), 0.5 * (f01 + f10), 0.5 * (f10 + f01),
+                       0.5 * (f11 + f11))
             self.syncs += 1
-            nu, s = innovation(self.x, self.P, z, r)
+            nu, s = _innovation(self._x, self._P, z, r)
         if refused or self._rejects(nu, s, slew):
             self.outliers += 1
             self.outlier_run += 1
             if clear:
                 self.clear_credit = max(self.clear_credit - 1, 0)
             if self.outlier_run >= st.reacquire_after:
-                self.x = self.fx = self.fP = None
+                self._x = self._fx = self._fP = None
                 self._init()
             return True
-        if self.fx is not None and f is not None:
-            assert self.fP is not None   # set with fx
+        if self._fx is not None and f is not None:
+            assert self._fP is not None   # set with fx
             fnu, fs = f
             # log N(fnu; 0, fs) - log N(nu; 0, s), with forgetting
             ll = 0.5 * (math.log(s / fs) + nu * nu / s - fnu * fnu / fs)
             self.evidence += ll - self.evidence / FOLLOW_MEMORY
-            self.fx, self.fP = kalman_update(self.fx, self.fP, z, r)
+            self._fx, self._fP = _update(self._fx, self._fP, z, r)
             self._limit_accel()
-        self.x, self.P = kalman_update(self.x, self.P, z, r)
+        self._x, self._P = _update(self._x, self._P, z, r)
         self.outlier_run = 0
         self.updates += 1
         if clear:
