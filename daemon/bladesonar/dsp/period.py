@@ -441,8 +441,13 @@ def _fundamental(candidates: np.ndarray, lines: DopplerLines, folds: PhaseFolds,
             hs = np.array([h for h in lines.harmonics_with_energy(r) if h <= ORDER_HARMONICS]
                           or [1], dtype=np.float64)
             return folds.roughness(_refine(folds.z, folds.k, r, hs, folds.span, finer=1))
-        line = min(lines_of, key=order)
-        r0 = float(line[int(np.argmin([folds.roughness(float(r)) for r in line]))])
+        orders = [order(g) for g in lines_of]
+        if min(orders) <= RANDOM_ORDER:
+            # (where no line orders its angles, a record at p/q showing only q of them,
+            # the order tells nothing: the family of m/q below decides, or the reference
+            # is warned about)
+            line = lines_of[int(np.argmin(orders))]
+            r0 = float(line[int(np.argmin([folds.roughness(float(r)) for r in line]))])
     frac = near_fraction(r0, span=int(folds.span), max_q=FAMILY_MAX_Q, min_q=2, zero=False)
     if float(rough.min()) > RANDOM_ORDER and frac is not None:
         # the tightest folds put the angles in no order at all: a record at p/q shows only
