@@ -31,9 +31,10 @@ REVERSE_AT = 12.0           # s into each session: the fan reverses
 #: per PRI (loopback/room.py), so the moment the rate leaves "unknown" on the ramp, which
 #: depends on the noise draw (1.37-2.33 s over draws, docs/audio.md), is the same draw in
 #: both, and each path records the same pulses for its reference (from the first pulse
-#: heard, whatever the latency: service/recorder.py). A step reversal, which no fan makes, now waits for its new line to beat its
-#: mirror image (docs/dynamics.md, "A sudden reversal"), whose check every 8 pulses put
-#: the 44.1 kHz path 0.34 s behind the ALSA loopback's.
+#: heard, whatever the latency: service/recorder.py). A step reversal, which no fan
+#: makes, now waits for its new line to beat its mirror image (docs/dynamics.md, "A
+#: sudden reversal"), whose check every 8 pulses put the 44.1 kHz path 0.34 s behind the
+#: ALSA loopback's.
 SCHEDULE = f"ccw:{RATE}:{REVERSE_AT:g},cw:{RATE}:600~3"
 RUN_S = 20.0
 #: The issue's bar: the reversal confirmed within this of the ALSA loopback's (s).
