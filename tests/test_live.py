@@ -229,6 +229,7 @@ def decisions_and_events(cfg, ref, x, lead: int = 0):
     pri = cfg.waveform.pri_samples
     y = np.concatenate([np.zeros(lead), x])
     decided, events = [], []
+    watched = None
     i = 0
     while i + pri <= len(y):
         for _ in range(live.wanted()):
@@ -237,14 +238,14 @@ def decisions_and_events(cfg, ref, x, lead: int = 0):
             live.feed(y[i:i + pri], i)
             i += pri
         an = live.analyzer
-        if an is not None and not hasattr(an, "_seen_steps"):
-            an._seen_steps = True          # watch the decisions the state machine gets
+        if an is not None and an is not watched:
+            watched = an                   # watch the decisions the state machine gets
             step = an.transitions.step
 
             def watch(t_s, k, d, since, step=step):
                 decided.append(k)
                 return step(t_s, k, d, since)
-            an.transitions.step = watch
+            an.transitions.step = watch    # type: ignore[method-assign,assignment]
         events += [(e.kind.value, e.pulse, i - lead) for e in live.take_events()]
     return decided, events
 
