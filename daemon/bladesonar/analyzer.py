@@ -542,13 +542,14 @@ class PulseAnalyzer:
         self._group = g
         return True
 
-    def next_decision(self) -> int | None:
+    def next_decision(self, nth: int = 1) -> int | None:
         """With ``by_number``: the number of the pulse the next decision falls on if it
-        is valid (the daemon cuts its analysis blocks so that it is analysed at once);
-        None before the first decision."""
+        is valid, or with ``nth`` the next of every nth decision (the daemon ends its
+        analysis blocks there); None before the first decision."""
         if not self.by_number or self._k0 is None:
             return None
-        return self._k0 + (self._group + 1) * self.cfg.tracking.decide_every
+        nth = max(int(nth), 1)
+        return self._k0 + (self._group // nth + 1) * nth * self.cfg.tracking.decide_every
 
     def _prepare(self, block: AlignedPulses) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                       fp.Matches, np.ndarray, np.ndarray] | None:

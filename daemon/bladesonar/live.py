@@ -129,13 +129,15 @@ class LiveAnalyzer:
         self._analyse(samples, start_sample)
 
     def _due(self) -> int | None:
-        """Aligner stream position at which the next decision's pulse can be analysed
-        (None before the first decision). A block ends there: cut on the capture's grid,
-        the deciding pulse waited for the rest of its block, a wait set by the latency
-        between the streams modulo the block (0.08 s through the ALSA loopback, 0.24 s
-        through PipeWire: docs/audio.md)."""
+        """Aligner stream position at which the pulse of the next decision that ends a
+        block can be analysed (every ``block_pulses // decide_every``-th decision, on
+        pulse numbers: the same ones whatever the latency; None before the first
+        decision). Cut on the capture's grid, the deciding pulse waited for the rest of
+        its block, a wait set by the latency between the streams modulo the block (0.08
+        s through the ALSA loopback, 0.24 s through PipeWire: docs/audio.md)."""
         an = self.analyzer
-        k = an.next_decision() if an is not None else None
+        nth = self.block_pulses // self.cfg.tracking.decide_every
+        k = an.next_decision(nth) if an is not None else None
         if k is None:
             return None
         # the analyzer counts pulses lost in capture gaps; the aligner does not
@@ -143,9 +145,9 @@ class LiveAnalyzer:
 
     def wanted(self) -> int:
         """Capture periods (PRIs) to read before the next analysis: the rest of the
-        block, or fewer, up to the one that completes the next decision's pulse (the
-        daemon reads this many, so the decision is published once its pulse is in,
-        whatever the latency between the streams)."""
+        block, or fewer, up to the one that completes the pulse of the decision that
+        ends it (the daemon reads this many: a decision is published after the same
+        pulses of its own whatever the latency between the streams)."""
         held = sum(len(h) for h in self._held)
         n = self.block_pulses - held // self.pri
         due = self._due()
