@@ -41,6 +41,12 @@ RUN_S = 20.0
 DELAY_BOUND_S = 0.3
 NOISE = 1e-4                # white noise on the capture, full scale 1
 REF_S = 10
+#: The daemon's capture period through PipeWire, PRIs, as config/bladesonar-pipewire.
+#: example.yaml sets it: an event leaves once the period holding its deciding pulse is
+#: in, and with 4 that wait (0-3 PRIs) came and went with the latency between the
+#: streams, whichever graph cycle they started on (268.9 or 292.1 ms at 44.1 kHz: the
+#: reversal +0.15 or +0.28 s off the ALSA loopback's, whose latency is fixed)
+PW_PERIOD_PULSES = 2
 
 
 def pri_for(fs: int) -> int:
@@ -233,7 +239,8 @@ class Graph:
         self.room: PwRoomProcess | None = None
         self.cfg = daemon_config(d, backend="pipewire", sample_rate=fs,
                                  playback_device="bladesonar_sink",
-                                 capture_device="bladesonar_source")
+                                 capture_device="bladesonar_source",
+                                 period_pulses=PW_PERIOD_PULSES)
         self.truth = d / "truth.jsonl"
         try:
             self.room = PwRoomProcess(self.server, self.cfg, SCHEDULE, noise=NOISE,
