@@ -53,7 +53,7 @@ class RoomProcess:
 
     def __init__(self, cfg_path: Path, room_dir: Path, schedule: str, *, realtime: bool,
                  keep_serving: bool = False, noise: float = 0.0, truth: Path | None = None,
-                 connect_timeout: float = 60.0) -> None:
+                 connect_timeout: float = 60.0, latency: int | None = None) -> None:
         args = ["room", "--config", str(cfg_path), "--dir", str(room_dir),
                 "--schedule", schedule, "--connect-timeout", str(connect_timeout)]
         if realtime:
@@ -64,6 +64,8 @@ class RoomProcess:
             args += ["--noise", str(noise)]
         if truth is not None:
             args += ["--truth", str(truth)]
+        if latency is not None:
+            args += ["--latency", str(latency)]
         self.log = room_dir / "room.log"
         room_dir.mkdir(parents=True, exist_ok=True)
         self._log = open(self.log, "w", encoding="utf-8")

@@ -356,6 +356,14 @@ class PulseAnalyzer:
     new_events: list[Event] = field(default_factory=list)
     #: the decision cadence (tracking.decide_every): pulses since the last decision
     _since: int = 0
+    #: the daemon's cadence (LiveAnalyzer): a decision on the first valid pulse of each
+    #: run of decide_every pulse *numbers* from the first decision's (``_k0``; ``_group``
+    #: the last decision's run), so that pulses dropped at a latency step move no later
+    #: decision (counted over valid pulses they moved every one: a new noise draw on a
+    #: ramp, docs/audio.md). With no pulse dropped, the same pulses as offline.
+    by_number: bool = False
+    _k0: int | None = None
+    _group: int = -1
     #: the long meter's statistic at the last decision (the alias watch and the
     #: reference-fit watch read it between decisions)
     motion_fed: float = float("nan")
@@ -449,9 +457,16 @@ class PulseAnalyzer:
         # pulses are added to the meters once the block is done)
         at: dict[int, int] = {}
         since, first = self._since, self.state is None
+        ks = block.index[v].tolist()
+        group, k0 = self._group, self._k0
         for i in range(len(feats)):
             since += 1
-            if since >= every or first:
+            if self.by_number:
+                k0 = ks[i] if first or k0 is None else k0
+                g = (ks[i] - k0) // every
+                if g != group or first:
+                    at[i + 1], group, first = len(at), g, False
+            elif since >= every or first:
                 at[i + 1], since, first = len(at), 0, False
         ends = np.fromiter(at, dtype=np.int64, count=len(at))
         pm, ps = self.motion.preview(feats, ends), self.still.preview(still_feats, ends)
@@ -491,9 +506,10 @@ class PulseAnalyzer:
             self._since += 1
             fired: list[Event] = []
             changed = False
-            if self._since >= every or self.state is None:
-                # counted over all valid pulses, so that the daemon (blocks of 8)
-                # and analyze (large blocks) decide on the same pulses
+            if self._decides(k, every):
+                # counted over all valid pulses (or on pulse numbers: by_number), so
+                # that the daemon (blocks of 8) and analyze (large blocks) decide on
+                # the same pulses
                 q = at[i + 1]
                 self.motion_fed = float(pm.motion[q])
                 d = self.decided = self.decision((self.motion_fed, float(ps.motion[q])))
@@ -510,6 +526,7 @@ class PulseAnalyzer:
                        "track_sd": None if not st.locked or self.tracker.P is None else round(
                            math.sqrt(max(self.tracker.P.item(0, 0), 0.0)), 5),
                        "outlier": st.outlier}
+                assert self.state is not None       # (decided on the first pulse)
                 row.update(self.state.as_dict())
                 row["event"] = fired[-1].kind if fired else None
                 out.append(row)
@@ -523,6 +540,27 @@ class PulseAnalyzer:
         self.motion.commit(pm)
         self.still.commit(ps)
         return out
+
+    def _decides(self, k: int, every: int) -> bool:
+        """Whether valid pulse ``k`` is a decision's (see ``by_number``)."""
+        if not self.by_number:
+            return self._since >= every or self.state is None
+        if self.state is None or self._k0 is None:
+            self._k0 = k
+        g = (k - self._k0) // every
+        if g == self._group and self.state is not None:
+            return False
+        self._group = g
+        return True
+
+    def next_decision(self, nth: int = 1) -> int | None:
+        """With ``by_number``: the number of the pulse the next decision falls on if it
+        is valid, or with ``nth`` the next of every nth decision (the daemon ends its
+        analysis blocks there); None before the first decision."""
+        if not self.by_number or self._k0 is None:
+            return None
+        nth = max(int(nth), 1)
+        return self._k0 + (self._group // nth + 1) * nth * self.cfg.tracking.decide_every
 
     def _prepare(self, block: AlignedPulses) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                       fp.Matches, np.ndarray, np.ndarray] | None:
@@ -899,9 +937,10 @@ class WarmStart:
     the offline analysis of a file are this same code."""
 
     def __init__(self, cfg: Config, ref: Reference, *, rows: bool = False,
-                 uncertain_gaps: bool = False) -> None:
+                 uncertain_gaps: bool = False, by_number: bool = False) -> None:
         self.cfg, self.ref, self.rows = cfg, ref, rows
         self.uncertain_gaps = uncertain_gaps
+        self.by_number = by_number      # the daemon's cadence (PulseAnalyzer.by_number)
         self.warmup = int(max(round(cfg.analysis.static_window_s * cfg.prf_hz), 1))
         self.analyzer: PulseAnalyzer | None = None
         self._held: list[AlignedPulses] = []
@@ -931,6 +970,7 @@ class WarmStart:
             first = first[~dev.burst_mask(median(res * res, axis=1))]
         self.analyzer = new_analyzer(self.cfg, self.ref, first)
         self.analyzer.uncertain_gaps = self.uncertain_gaps
+        self.analyzer.by_number = self.by_number
         rows: list[dict[str, Any]] = []
         for h in self._held:
             rows.extend(self.analyzer.process(h, rows=self.rows))

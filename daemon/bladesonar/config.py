@@ -173,10 +173,13 @@ class DaemonSettings:
                          "unless absolute")
     window_s: float = opt(5.0, "observation window the published estimate describes",
                           lo=0.25, hi=3600.0, unit="s")
-    block_pulses: int = opt(8, "capture periods gathered and analysed together: the CPU "
-                            "per pulse falls with it (the numpy work of a block costs "
-                            "about the same for 1 pulse as for 8), a state or an event "
-                            "is published up to that many PRIs later (8: 0.24 s); the "
+    block_pulses: int = opt(8, "capture periods gathered and analysed together, each "
+                            "block ending where a decision's pulse is complete (every "
+                            "block_pulses / tracking.decide_every-th decision, on pulse "
+                            "numbers: the same pulses whatever the latency): the CPU per "
+                            "pulse falls with it (the numpy work of a block costs about "
+                            "the same for 1 pulse as for 8), a decision between two ends "
+                            "is published up to that many PRIs later (8: 0.12 s); the "
                             "answers are the same", lo=1, hi=1000, unit="pulses")
 
 

@@ -81,7 +81,7 @@ class LiveAnalyzer:
         self._held: list[np.ndarray] = []      # capture periods gathered, not yet analysed
         self._held_at: int | None = None       # stream position of the first one
         self.aligner = new_aligner(cfg, ref)
-        self.stream = WarmStart(cfg, ref)
+        self.stream = WarmStart(cfg, ref, by_number=True)
         self._next_sample: int | None = None
         self._pushed = 0                       # samples given to the aligner so far
         self._gaps: list[tuple[int, int]] = []  # (aligner stream position, pulses lost)
@@ -120,10 +120,40 @@ class LiveAnalyzer:
             if not self._held:
                 self._held_at = start_sample
             self._held.append(np.asarray(samples, dtype=np.float64))
-            if sum(len(h) for h in self._held) >= self.block_pulses * self.pri:
+            held = sum(len(h) for h in self._held)
+            due = self._due()
+            if held >= self.block_pulses * self.pri or \
+                    (due is not None and self._pushed + held >= due):
                 self.flush()
             return
         self._analyse(samples, start_sample)
+
+    def _due(self) -> int | None:
+        """Aligner stream position at which the pulse of the next decision that ends a
+        block can be analysed (every ``block_pulses // decide_every``-th decision, on
+        pulse numbers: the same ones whatever the latency; None before the first
+        decision). Cut on the capture's grid, the deciding pulse waited for the rest of
+        its block, a wait set by the latency between the streams modulo the block (0.08
+        s through the ALSA loopback, 0.24 s through PipeWire: docs/audio.md)."""
+        an = self.analyzer
+        nth = self.block_pulses // self.cfg.tracking.decide_every
+        k = an.next_decision(nth) if an is not None else None
+        if k is None:
+            return None
+        # the analyzer counts pulses lost in capture gaps; the aligner does not
+        return self.aligner.hand_on_at(k - sum(n for _, n in self._gaps))
+
+    def wanted(self) -> int:
+        """Capture periods (PRIs) to read before the next analysis: the rest of the
+        block, or fewer, up to the one that completes the pulse of the decision that
+        ends it (the daemon reads this many: a decision is published after the same
+        pulses of its own whatever the latency between the streams)."""
+        held = sum(len(h) for h in self._held)
+        n = self.block_pulses - held // self.pri
+        due = self._due()
+        if due is not None:
+            n = min(n, -(-(due - self._pushed - held) // self.pri))
+        return max(n, 1)
 
     def flush(self) -> None:
         """Analyse the capture periods gathered so far (``block_pulses`` > 1)."""

@@ -417,6 +417,18 @@ class PulseAligner:
         """Current PRI estimate in capture samples (differs from ``pri`` by clock drift)."""
         return self._period
 
+    def hand_on_at(self, k: int) -> int | None:
+        """Stream position the samples must reach before pulse ``k`` (or the next one to
+        be handed on, if that is later) is handed on: its successor's edge measured, the
+        edges predicted at the current PRI. None before the first edge. The daemon cuts
+        its analysis blocks there, on the pulses' grid, not on the capture's."""
+        p = self._pending
+        if p is None or self._ended:
+            return None
+        reach = TEMPLATE_AFTER if self._template is not None else KERNEL_HALF + 2
+        pred = p.edge + (max(k, p.index) - p.index + 1) * self._period
+        return int(math.floor(pred)) + self.pri // 2 + reach
+
     def push(self, chunk: np.ndarray) -> AlignedPulses:
         """Add samples; return the pulses completed by them (possibly none)."""
         if self._ended:

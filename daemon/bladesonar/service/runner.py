@@ -327,8 +327,10 @@ class Service:
             self._last_pulse_t = self.clock()
         assert self.audio is not None
         # analysing: the periods of one analysis block in one wake-up (the loop's own work
-        # once a period was a quarter of this thread's CPU)
-        batch = self.analyzer.block_pulses if self.analyzer is not None else 1
+        # once a period was a quarter of this thread's CPU), or fewer, up to the one that
+        # completes the next decision's pulse (LiveAnalyzer.wanted): read on the capture's
+        # grid, a decision waited up to a block, by the latency between the streams
+        batch = self.analyzer.wanted() if self.analyzer is not None else 1
         blocks = self.audio.read_pulses(batch, timeout=0.5)
         now = self.clock()
         if not blocks:
