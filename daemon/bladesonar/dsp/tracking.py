@@ -422,6 +422,35 @@ class TrackState:
     coherence: float
 
 
+class _FloatState:
+    """A Tracker's float state (``_x`` for ``x``) given out as a read-only array, made once
+    per state (the array last given out is kept beside it); an array set is stored as
+    floats."""
+
+    def __init__(self, dim: int, square: bool, doc: str) -> None:
+        self.shape = (dim, dim) if square else (dim,)
+        self.__doc__ = doc
+        self.name = ""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = "_" + name
+
+    def __get__(self, obj: Tracker, objtype: type | None = None) -> np.ndarray | None:
+        v: Vec | None = getattr(obj, self.name)
+        if v is None:
+            return None
+        got = obj._arrays.get(self.name)
+        if got is not None and got[0] is v:
+            return got[1]
+        a = np.array(v).reshape(self.shape)
+        a.flags.writeable = False
+        obj._arrays[self.name] = (v, a)
+        return a
+
+    def __set__(self, obj: Tracker, value: np.ndarray | None) -> None:
+        setattr(obj, self.name, None if value is None else _floats(value))
+
+
 @dataclass
 class Tracker:
     """Per-pulse tracker for the daemon: matches in, (phase, rate) estimates out.
@@ -470,56 +499,15 @@ class Tracker:
         self._recent = deque(maxlen=self.settings.init_pulses)
         self._accepted = deque(maxlen=self.settings.init_pulses)
 
-    def _array(self, name: str, dim: int, square: bool) -> np.ndarray | None:
-        """The float state ``name`` as a read-only array (made once per state)."""
-        v: Vec | None = getattr(self, name)
-        if v is None:
-            return None
-        got = self._arrays.get(name)
-        if got is not None and got[0] is v:
-            return got[1]
-        a = np.array(v).reshape((dim, dim) if square else (dim,))
-        a.flags.writeable = False
-        self._arrays[name] = (v, a)
-        return a
-
-    # The states as arrays, for readers and for tests that set a state; the per-pulse
-    # path works on the floats (a Kalman step made four small arrays at every pulse).
-    @property
-    def x(self) -> np.ndarray | None:
-        """The track's state [phase (cycles), rate (cycles per pulse)], None unlocked."""
-        return self._array("_x", 2, False)
-
-    @x.setter
-    def x(self, value: np.ndarray | None) -> None:
-        self._x = None if value is None else _floats(value)
-
-    @property
-    def P(self) -> np.ndarray | None:
-        """The track's covariance, 2x2."""
-        return self._array("_P", 2, True)
-
-    @P.setter
-    def P(self, value: np.ndarray | None) -> None:
-        self._P = None if value is None else _floats(value)
-
-    @property
-    def fx(self) -> np.ndarray | None:
-        """The follower's state [phase, rate, rate change per pulse], None without one."""
-        return self._array("_fx", 3, False)
-
-    @fx.setter
-    def fx(self, value: np.ndarray | None) -> None:
-        self._fx = None if value is None else _floats(value)
-
-    @property
-    def fP(self) -> np.ndarray | None:
-        """The follower's covariance, 3x3."""
-        return self._array("_fP", 3, True)
-
-    @fP.setter
-    def fP(self, value: np.ndarray | None) -> None:
-        self._fP = None if value is None else _floats(value)
+    # The states as arrays (x, P, fx, fP: _FloatState), for readers and for tests that
+    # set a state; the per-pulse path works on the floats (a Kalman step made four small
+    # arrays at every pulse).
+    x = _FloatState(2, False, "The track's state [phase (cycles), rate (cycles per "
+                    "pulse)], None unlocked.")
+    P = _FloatState(2, True, "The track's covariance, 2x2.")
+    fx = _FloatState(3, False, "The follower's state [phase, rate, rate change per "
+                     "pulse], None without one.")
+    fP = _FloatState(3, True, "The follower's covariance, 3x3.")
 
     @property
     def follower_phase(self) -> float | None:
@@ -892,8 +880,8 @@ class Tracker:
             assert self._fx is not None and self._fP is not None
             self._x = (self._fx[0], self._fx[1])
             f00, f01, _, f10, f11 = self._fP[:5]
-            self._P = (0.5 * (f00 + f00), 0.5 * (f01 + f10), 0.5 * (f10 + f01),
-                       0.5 * (f11 + f11))
+            f01 = 0.5 * (f01 + f10)    # (symmetrised; the diagonal is its own mirror)
+            self._P = (f00, f01, f01, f11)
             self.syncs += 1
             nu, s = _innovation(self._x, self._P, z, r)
         if refused or self._rejects(nu, s, slew):
