@@ -106,6 +106,20 @@ WARMUP = 6      # first pulses of a stream: no predecessor, so the reverberation
 BURST = 7       # swamped by a burst of interference (speech, clatter): skipped, counted apart
 
 
+#: A PRI of capture holds a pulse's direct coupling when its peak stands this far above
+#: the PRI's median level (a noise peak of a PRI is some 5 times the median).
+PEAK_OVER_MEDIAN = 8.0
+
+
+def coupling_peak(a: np.ndarray) -> int | None:
+    """Where the direct coupling peaks in one PRI of capture magnitudes ``a`` (not
+    empty), or None if no peak stands PEAK_OVER_MEDIAN over their median: a coarse test
+    of whether a pulse came back (the latency follower's, the recorder's first pulse);
+    the aligner times edges on its own."""
+    i = int(np.argmax(a))
+    return None if a[i] <= PEAK_OVER_MEDIAN * max(float(median(a)), 1e-9) else i
+
+
 def fractional_taps(frac: np.ndarray) -> np.ndarray:
     """Interpolation taps for reading ``x[i + frac]`` as ``sum_m x[i + m] taps[m]``.
 

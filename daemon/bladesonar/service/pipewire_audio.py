@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..dsp.pulses import coupling_peak
 from ..errors import AudioDeviceError
 from . import sound_server
 from .alsa_audio import AlsaAudio, _alsaaudio
@@ -88,8 +89,6 @@ class StreamLatency:
     """
 
     JUMP = 2
-    #: a PRI's peak counts as the coupling only this far above the PRI's median level
-    PEAK_OVER_MEDIAN = 8.0
     #: consecutive PRIs whose peaks sit at one place before the first is believed (a
     #: noise peak does not repeat)
     LOCK = 3
@@ -106,9 +105,8 @@ class StreamLatency:
 
     def push(self, x: np.ndarray, start_sample: int, discontinuity: bool = False) -> bool:
         """Follow one PRI of capture; whether it held a coupling peak."""
-        a = np.abs(x)
-        i = int(np.argmax(a))
-        if a[i] <= self.PEAK_OVER_MEDIAN * max(float(np.median(a)), 1e-9):
+        i = coupling_peak(np.abs(x))
+        if i is None:
             if self.samples is None:
                 self._cand.clear()
             return False

@@ -17,6 +17,7 @@ import logging
 import numpy as np
 
 from ..config import Config
+from ..dsp.pulses import coupling_peak
 from ..errors import AudioDeviceError
 from ..progress import Progress
 
@@ -26,15 +27,11 @@ log = logging.getLogger(__name__)
 #: Capture periods (PRIs) of lead-in skipped at most before recording anyway (the
 #: aligner's own bound, PulseAligner.max_lead_in: 1.9 s at 44.1 kHz)
 LEAD_IN_PRIS = 64
-#: A PRI holds the direct coupling when its peak is this far above its median level
-#: (StreamLatency's test: a noise peak of a PRI is some 5 times the median)
-PEAK_OVER_MEDIAN = 8.0
-
-
 def holds_pulse(x: np.ndarray) -> bool:
-    """Whether one PRI of capture holds the direct coupling of a pulse."""
+    """Whether one PRI of capture holds the direct coupling of a pulse
+    (:func:`dsp.pulses.coupling_peak`)."""
     a = np.abs(np.nan_to_num(np.asarray(x, dtype=np.float64)))
-    return bool(len(a)) and float(a.max()) > PEAK_OVER_MEDIAN * max(float(np.median(a)), 1e-9)
+    return bool(len(a)) and coupling_peak(a) is not None
 
 
 def record(cfg: Config, seconds: float, *, timeout_s: float = 5.0) -> np.ndarray:
