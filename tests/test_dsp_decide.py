@@ -10,6 +10,7 @@ import pytest
 from bladesonar.dsp.decide import (
     DecideSettings,
     MotionMeter,
+    RestFloor,
     decide,
     motion_statistic,
     noise_threshold,
@@ -209,3 +210,50 @@ def test_a_previewed_block_gives_the_statistic_after_each_prefix(block):
     # what was committed is what statistic() reads
     np.testing.assert_allclose(m.statistic(), _motion_by_definition(x[-window:], lag),
                                rtol=1e-9)
+
+
+def _resting_readings(windows: int, seed: int, amp: float = 1.5) -> np.ndarray:
+    """A streaming short meter's readings of a fan at rest in a room that adds a slow
+    wander to white noise (a strong static echo whose level swings over 90 pulses, longer
+    than the meter's lags, as a reverberant tail under clock drift does), window by
+    window."""
+    L, W, M = 160, 51, 25
+    x = np.arange(L)
+    echo = np.exp(-0.5 * ((x - 80) / 6.0) ** 2) * np.cos(0.6 * x)
+    rng = np.random.default_rng(seed)
+    out = []
+    for w in range(windows):
+        k = np.arange(w * W, (w + 1) * W)
+        pulses = (amp * (1.0 + np.sin(2.0 * np.pi * k / 90.0)))[:, None] * echo[None, :]
+        f = envelope_features(pulses + rng.standard_normal((W, L)), np.zeros(L), band=0.2,
+                              smooth=5)
+        m = MotionMeter(L, W, M)
+        m.update_block(f)
+        out.append(m.statistic()[0])
+    return np.array(out)
+
+
+def test_the_rest_threshold_rises_to_what_the_device_reads_at_rest():
+    """White noise's threshold calls such a rest in few windows; calibrated on the
+    readings taken while the fan is seen at rest, the threshold sits above them (a rest
+    is called in 9 of 10 later windows or more), never more than ``max_shift`` above noise's,
+    and readings taken while the fan is seen turning do not move it."""
+    L, W, M = 160, 51, 25
+    base = noise_threshold(L, W, M, 0.2, 5) + 0.03
+    med = noise_threshold(L, W, M, 0.2, 5, quantile=0.5)
+    early, late = _resting_readings(60, 1), _resting_readings(60, 2)
+    assert np.mean(late < base) <= 0.8
+    turning = RestFloor(base, med, max_shift=0.15, keep=256, least=30)
+    for r in early:
+        turning.note(float(r), at_rest=False)
+    assert turning.threshold == base
+    rest = RestFloor(base, med, max_shift=0.15, keep=256, least=30)
+    for r in early:
+        rest.note(float(r), at_rest=True)
+    assert base < rest.threshold <= base + 0.15
+    assert np.mean(late < rest.threshold) >= 0.9
+    # a louder wander than the shift allows: readings past it are not kept, the cap holds
+    loud = RestFloor(base, med, max_shift=0.15, keep=256, least=30)
+    for r in _resting_readings(60, 3, amp=4.0):
+        loud.note(float(r), at_rest=True)
+    assert loud.threshold <= base + 0.15

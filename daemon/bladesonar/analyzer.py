@@ -27,7 +27,7 @@ from .config import Config
 from .dsp import aliasing, rangescale
 from .dsp import device as dev
 from .dsp import fingerprint as fp
-from .dsp.decide import MotionMeter, decide, noise_threshold
+from .dsp.decide import MotionMeter, RestFloor, decide, noise_threshold
 from .dsp.pulses import DROPOUT, OK, WARMUP, AlignedPulses, PulseAligner
 from .dsp.stats import median
 from .dsp.tracking import Tracker, TrackState
@@ -38,6 +38,9 @@ from .tuning import (
     HOLD_S,
     NOISE_MARGIN,
     RECHECK_EVERY,
+    REST_KEEP,
+    REST_LEAST,
+    REST_SHIFT_MAX,
     SCALE_EVERY,
     SCALE_LIMIT,
     SCALE_MIN_CORR,
@@ -429,10 +432,14 @@ class PulseAnalyzer:
         # the short meter calls rest against what noise alone reads in this gate (a short
         # gate reads well over 1: decide.noise_threshold), never below the configured one
         floor = self._decide_settings.motion_threshold
+        shape = (self.ref.mean_pulse.shape[0], self.still.window, self.still.max_lag,
+                 STILL_BAND, self.cfg.analysis.envelope_smooth)
         self._decide_settings = replace(self._decide_settings, still_threshold=max(
-            floor, noise_threshold(self.ref.mean_pulse.shape[0], self.still.window,
-                                   self.still.max_lag, STILL_BAND,
-                                   self.cfg.analysis.envelope_smooth) + NOISE_MARGIN))
+            floor, noise_threshold(*shape) + NOISE_MARGIN))
+        # and above what this device reads at rest, where that is more than noise
+        self.rest_floor = RestFloor(self._decide_settings.still_threshold,
+                                    noise_threshold(*shape, quantile=0.5),
+                                    REST_SHIFT_MAX, REST_KEEP, REST_LEAST)
         self._table_norms = (self.ref.table ** 2).sum(axis=1)
         self._table_floor = fp.distance_floor(self.ref.table)
         prf = self.cfg.prf_hz
@@ -881,6 +888,14 @@ class PulseAnalyzer:
         rate, sd = self.tracker.rate
         prf = self.cfg.prf_hz
         accel, _ = self.tracker.accel
+        # the short meter's threshold, calibrated on its readings while the tracker sees
+        # no motion (RestFloor)
+        ref_cpp = self.ref.cycles_per_pulse
+        seen_hz = abs(rate) / ref_cpp * float(self.ref.meta["rate_hz"]) \
+            if locked and math.isfinite(rate) and ref_cpp > 0 else 0.0
+        thr = self.rest_floor.note(still, seen_hz < self.cfg.tracking.rate_floor_hz)
+        if thr != self._decide_settings.still_threshold:
+            self._decide_settings = replace(self._decide_settings, still_threshold=thr)
         # the short meter sees no change beyond noise: the fan may be coming to rest, and
         # a track coasting on is no direction to check against its mirror
         self._quiet = still < self._decide_settings.still_threshold

@@ -31,6 +31,14 @@ STILL_BAND = 0.2
 #: Added to the short meter's noise-alone threshold (decide.noise_threshold, its 98th
 #: percentile): room for what the device adds to white noise.
 NOISE_MARGIN = 0.03
+#: How far the short meter's rest threshold may rise above the noise-alone one on what
+#: the device reads at rest (decide.RestFloor), and over how many of those readings
+#: (decisions, every 4 pulses: the last 30 s of rest, from 3.5 s on): a turning fan reads
+#: 1.43 or more at the 1st percentile in the reverberant room that needed it (1.30 then),
+#: 1.67 at the 5th in the tuned room.
+REST_SHIFT_MAX = 0.15
+REST_KEEP = 256
+REST_LEAST = 30
 
 #: Pulses between checks of a poorly accepted track (PulseAnalyzer._recheck_track).
 RECHECK_EVERY = 8
