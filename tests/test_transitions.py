@@ -1073,3 +1073,36 @@ def test_a_sudden_run_that_beats_its_mirror_corrects_an_unchecked_direction():
     assert tr.known_decision is not None and "corrected" in tr.known_decision.reason
     fired, _, _ = _walk(rest + [_d("same", 0.21)] * 100 + [_d("reversed", 0.2)] * 60)
     assert fired == [("started", 40 + 16), ("reversed", 40 + 134)]
+
+
+def test_a_decided_turn_is_no_rest_for_the_mirror_check_while_the_static_is_held(
+        reference):
+    """The alias watch skips its mirror check while the fan rests. A held static
+    estimate (RestHold, from a stop decided on the way through zero) is released only by
+    a published turn, and a sudden turn is published only once its line beats its mirror:
+    if the held estimate counted as rest the turn would wait for good (spent held-out
+    700002: a reversal `unknown` for 20 s at 0.35 Hz, missed). A decided turn at three
+    times the floor or more is no rest; a held estimate with no such turn, a stop, or a
+    decided turn under that rate still is. The watch's own check is wrapped to record
+    what it is told (a spy on our own call, not a stand-in: it runs as it does)."""
+    from bladesonar.analyzer import new_analyzer
+    an = new_analyzer(config.Config(), reference)
+    told: list[bool] = []
+    check = an.aliases.check
+
+    def spy(tr, *, accel, moving, resting=False):
+        told.append(resting)
+        check(tr, accel=accel, moving=moving, resting=resting)
+
+    an.aliases.check = spy          # type: ignore[method-assign]
+    an.static.frozen = True
+    floor3 = an.rest_hold.turning_hz
+    for d in (_d("reversed", 0.35, checked=False), _d("reversed", 0.9 * floor3),
+              _d("stopped"), None):
+        an.decided = d
+        an._check_aliases()
+    assert told == [False, True, True, True]
+    an.static.frozen = False
+    an.decided = _d("same", 0.35)
+    an._check_aliases()
+    assert told[-1] is False

@@ -826,8 +826,15 @@ class PulseAnalyzer:
         the long meter only for a track standing still (checked while the fan moves)."""
         def moving() -> bool:
             return self.motion_fed >= self.cfg.tracking.motion_threshold
-        resting = self.static.frozen or self._quiet or (
-            self.decided is not None and self.decided.direction == Direction.STOPPED)
+        d = self.decided
+        # a held static estimate (RestHold) stands for a fan at rest only until a turn is
+        # decided at a clear rate: held on until a published turn released it, the check
+        # a sudden turn waits for never ran, and the turn was never published (spent
+        # held-out 700002: a reversal through zero held `unknown` for 20 s and missed)
+        seen_turning = d is not None and d.direction in WAYS \
+            and (d.rate_hz or 0.0) >= self.rest_hold.turning_hz
+        resting = (self.static.frozen and not seen_turning) or self._quiet or (
+            d is not None and d.direction == Direction.STOPPED)
         self.aliases.check(self.tracker, accel=self._clear_accel(), moving=moving,
                            resting=resting)
 
