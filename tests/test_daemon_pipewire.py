@@ -403,9 +403,10 @@ def test_a_quantum_change_mid_run_changes_nothing_a_subscriber_sees(graph48, als
     off = off_alsa(run, graph48.last_session(), alsa48)
     # the pulses dropped at the latency steps move no later decision (the daemon decides
     # on pulse numbers; counted over valid pulses, they moved every one, +0.42 s here):
-    # +0.09 to +0.17 s in 8 module runs. Open: once, 6 latency steps that dropped 5
-    # pulses confirmed it 0.33 s *early* (the meters and the track without those pulses
-    # on the ramp: another noise draw, docs/audio.md)
+    # +0.09 to +0.17 s in 12 module runs (the last four with the room's quantum locked:
+    # +0.11 to +0.17 s). Open: once, 6 latency steps that dropped 5 pulses confirmed it
+    # 0.33 s *early* (the meters and the track without those pulses on the ramp: another
+    # noise draw, docs/audio.md)
     open_delay(off, "a quantum change")
 
 
