@@ -6,7 +6,9 @@ sink's monitor, renders the scene's echoes of each PRI-sized block at the fan an
 that moment (the same echo model as the FIFO room, ``Room._answer``), and plays the
 result into the virtual source. Every sample read gives one sample written, so the
 room is a fixed delay line on the graph's clock; the daemon's aligner finds the
-direct-coupling edge as on a card.
+direct-coupling edge as on a card. Its streams lock the quantum (``node.lock-quantum``):
+a quantum forced from outside still changes the graph's, but the room's delay stays
+where it was, as air's would (docs/audio.md, "A quantum change").
 
 A virtual source takes no automatic links from the session manager (streams are only
 linked to sinks), so the room's playback stream is created with ``node.autoconnect =
@@ -102,8 +104,14 @@ class PwRoom(Room):
                 raise AudioDeviceError("the room found no PipeWire server")
             time.sleep(0.2)
         self._ensure_nodes(deadline)
+        # node.lock-quantum: measured with tools/pw_quantum_probe, without it the room's
+        # own delay on the graph dropped by the difference when the quantum went back
+        # up (1024 -> 256 -> 1024: -768 samples, 5 of 5 runs; air does not re-buffer),
+        # with it the delay stayed put through both changes (6 of 6)
         base = {"node.dont-reconnect": "true", "application.name": "bladesonar-room",
-                "node.group": GROUP}
+                "node.group": GROUP, "node.lock-quantum": "true",
+                # tools/pw_quantum_probe --room-props: properties tried on the room's streams
+                **json.loads(os.environ.get("ROOM_EXTRA_PROPS") or "{}")}
         self._cap = self._pcm(alsa, "capture", self.sink,
                               {**base, "stream.capture.sink": "true",
                                "node.name": "bladesonar-room-in"})
