@@ -5,7 +5,8 @@ truth beside the estimator's insides. A measuring tool, not a test.
   .venv/bin/python tools/ramp_trace.py --seeds 1-12,700002 [--hours 0.4] [--out DIR]
   .venv/bin/python tools/ramp_trace.py --report DIR      (the breakdown of saved traces)
 
-Tuning seeds only (1-200, and the spent held-out ranges 600001-600022, 700001-700021):
+Tuning seeds only (1-200, and the spent held-out ranges 600001-600022, 700001-700021,
+800001-800020):
 seeds from 900001 on are the next held-out range, and the tool refuses them.
 
 A row (``.npz`` per seed, arrays named as below): ``t`` stream time of the state (s),
