@@ -139,7 +139,9 @@ class TrackingSettings:
     motion_threshold: float = opt(1.15, "pulse variance over the most-alike-lag difference "
                                   "below which the target is called stopped (the short "
                                   "meter uses what noise alone reads in the range gate "
-                                  "instead when that is higher: a short gate)",
+                                  "instead when that is higher: a short gate; and it "
+                                  "rises, at most 0.15, by what the device reads at "
+                                  "rest beyond noise: a reverberant room under drift)",
                                   lo=1.0, hi=10.0)
     min_confidence: float = opt(0.5, "below this confidence the direction is reported as "
                                 "unknown", lo=0.0, hi=1.0)
