@@ -333,6 +333,20 @@ class RateBound:
         tracker.limit_rate(self._cycles(bound) if math.isfinite(bound) else math.inf)
 
 
+def _by_number(k: int, k0: int | None, group: int, first: bool, every: int
+               ) -> tuple[bool, int, int]:
+    """The daemon's cadence (``PulseAnalyzer.by_number``) at valid pulse ``k``: whether
+    it is a decision's (the first of its run of ``every`` pulse numbers from ``k0``, or
+    the first decision), and the first decision's pulse and the last decision's run
+    after it. One rule for the block's planning ahead and for the decisions made."""
+    if first or k0 is None:
+        k0 = k
+    g = (k - k0) // every
+    if g == group and not first:
+        return False, k0, group
+    return True, k0, g
+
+
 @dataclass
 class PulseAnalyzer:
     """Streaming analysis of aligned pulses (what the daemon runs pulse by pulse).
@@ -478,10 +492,9 @@ class PulseAnalyzer:
         for i in range(len(feats)):
             since += 1
             if self.by_number:
-                k0 = ks[i] if first or k0 is None else k0
-                g = (ks[i] - k0) // every
-                if g != group or first:
-                    at[i + 1], group, first = len(at), g, False
+                hit, k0, group = _by_number(ks[i], k0, group, first, every)
+                if hit:
+                    at[i + 1], first = len(at), False
             elif since >= every or first:
                 at[i + 1], since, first = len(at), 0, False
         ends = np.fromiter(at, dtype=np.int64, count=len(at))
@@ -561,13 +574,9 @@ class PulseAnalyzer:
         """Whether valid pulse ``k`` is a decision's (see ``by_number``)."""
         if not self.by_number:
             return self._since >= every or self.state is None
-        if self.state is None or self._k0 is None:
-            self._k0 = k
-        g = (k - self._k0) // every
-        if g == self._group and self.state is not None:
-            return False
-        self._group = g
-        return True
+        hit, self._k0, self._group = _by_number(k, self._k0, self._group,
+                                                self.state is None, every)
+        return hit
 
     def next_decision(self, nth: int = 1) -> int | None:
         """With ``by_number``: the number of the pulse the next decision falls on if it
