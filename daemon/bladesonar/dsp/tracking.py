@@ -45,6 +45,10 @@ FOLLOW_MEMORY = 24.0
 #: deceleration through zero, and just after a lock it is the less certain line, so the
 #: track follows it only when the matches clearly favour it (docs/dynamics.md, History).
 SYNC_WEIGHT = 0.9
+#: Clear matches over which the share of stray ones (Tracker.stray) is measured, and the
+#: share assumed before any are seen.
+STRAY_MEMORY = 64.0
+STRAY_START = 0.05
 #: Clear matches (quality min_info or more) the track must have rejected among the recent
 #: ones before it is re-checked (Tracker.recheck).
 RECHECK_REJECTED = 3
@@ -147,6 +151,15 @@ def _predict3(x: Vec, P: Vec, q: float, n: float, qa: float) -> tuple[Vec, Vec]:
 def _innovation(x: Vec, P: Vec, z: float, r: float) -> tuple[float, float]:
     """innovation on floats."""
     return wrap(float(z) - x[0]), P[0] + float(r)
+
+
+def _mixture(nu: float, s: float, stray: float) -> float:
+    """Log likelihood of an innovation ``nu`` (variance ``s``) when a share ``stray`` of
+    matches land anywhere in the cycle (density 1): the model comparison's evidence per
+    match is bounded, so that where the fingerprint has look-alike angles one match at
+    the wrong one cannot swing it."""
+    g = math.exp(-0.5 * nu * nu / s) / math.sqrt(2.0 * math.pi * s)
+    return math.log((1.0 - stray) * g + stray)
 
 
 def _update(x: Vec, P: Vec, z: float, r: float) -> tuple[Vec, Vec]:
@@ -480,6 +493,10 @@ class Tracker:
     _fx: Vec | None = None
     _fP: Vec | None = None
     evidence: float = 0.0        # log likelihood ratio follower : track, recent matches
+    #: share of the recent clear matches that neither the track nor the follower expects
+    #: (a fingerprint with look-alike angles matches some pulses there): the weight the
+    #: evidence gives such a match (_mixture), measured on this device's matches
+    stray: float = STRAY_START
     rechecks: int = 0            # tracks given up because another line fit the matches
     syncs: int = 0               # times the track took the follower's line (_follower_takes)
     given_up: int = 0            # tracks given up for a rate beyond the bound (limit_rate)
@@ -873,6 +890,9 @@ class Tracker:
         # a match the reported follower expects is no sign against the track's line
         # (Tracker.recheck) even when the lagging track rejects it
         self._followed = bool(expected)
+        if clear:
+            stray = self._rejects(nu, s, slew) and (f is None or self._rejects(*f, slew))
+            self.stray += (float(stray) - self.stray) / STRAY_MEMORY
         if not refused and self._rejects(nu, s, slew) and self._follower_takes(f):
             # the constant-rate track lags a ramp the follower is on: it takes the
             # follower's line instead of counting the match out (a run of such outliers
@@ -896,8 +916,7 @@ class Tracker:
         if self._fx is not None and f is not None:
             assert self._fP is not None   # set with fx
             fnu, fs = f
-            # log N(fnu; 0, fs) - log N(nu; 0, s), with forgetting
-            ll = 0.5 * (math.log(s / fs) + nu * nu / s - fnu * fnu / fs)
+            ll = _mixture(fnu, fs, self.stray) - _mixture(nu, s, self.stray)
             self.evidence += ll - self.evidence / FOLLOW_MEMORY
             self._fx, self._fP = _update(self._fx, self._fP, z, r)
             self._limit_accel()
