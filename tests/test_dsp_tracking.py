@@ -700,3 +700,28 @@ def test_look_alike_matches_do_not_swing_a_steady_track_to_a_ramp():
     # of the in-view pulses; those landing inside the gate are not counted)
     assert 0.1 < np.median(strays) < 0.25, strays
 
+
+def test_a_re_check_takes_no_line_slower_than_the_fan_can_have_slowed():
+    """A track at 0.5 Hz (4 blades, 34 pulses/s) three of whose four recent clear
+    matches, at a look-alike angle, stand nearly still (0.05 Hz; the fourth on its line,
+    so never six outliers in a row): the re-check moves it to their line (spent held-out
+    800013: from 0.47 to 0.08 Hz in one pulse, then through zero, a false `reversed`).
+    With the analysis's bound from below (Tracker.rate_least, what the published speed
+    allows: analyzer.RateBound) it keeps its line."""
+    def run(least):
+        tr = Tracker(_ramp_settings())
+        rate, slow = 0.5 * 4 / 34.0, 0.05 * 4 / 34.0
+        for k in range(40):
+            tr.update(k, (0.1 + rate * k) % 1.0, 0.8)
+        assert tr.locked and abs(tr.rate[0] - rate) < 0.01 * rate
+        tr.rate_least = least
+        moved = False
+        for k in range(40, 100):
+            z = 0.1 + rate * k if k % 4 == 0 else 0.6 + slow * k
+            tr.update(k, z % 1.0, 0.8)
+            moved = tr.recheck() or moved
+        return moved, tr
+    moved, tr = run(0.0)
+    assert moved and abs(tr.track_rate[0]) < 0.2 * 0.5 * 4 / 34.0
+    moved, tr = run(0.4 * 4 / 34.0)
+    assert not moved and abs(tr.track_rate[0] - 0.5 * 4 / 34.0) < 0.01 * 0.5 * 4 / 34.0

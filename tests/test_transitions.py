@@ -890,7 +890,7 @@ def test_stream_time_is_scored_at_the_fans_time(scene):
     assert abs(late - 60.0 * DRIFT_PPM * 1e-6) < 1e-3, late
 
 
-def test_a_speed_published_briefly_bounds_new_lines_at_a_multiple_of_itself(reference):
+def test_a_speed_published_bounds_new_lines_above_and_below(reference):
     """Closed forms of the bound on new lines (analyzer.RateBound, in Hz): a speed
     published for ANCHOR_TRUST_S (2 s) bounds at itself plus twice the steepest ramp
     (0.3 Hz/s) over the time since plus twice the floor (0.1 Hz); one just published
@@ -898,7 +898,8 @@ def test_a_speed_published_briefly_bounds_new_lines_at_a_multiple_of_itself(refe
     (2.5) times itself, and the lower of the two bounds. Just past a reversal in a
     simulated day, 'reversed' at 0.21 Hz for 0.4 s, with the last trusted speed 0.09 Hz
     3 s before: 0.09 + 0.9 + 0.1 = 1.09 Hz let a re-check take a line at 0.92 Hz; now
-    2.5 x 0.21 + 0.12 + 0.1 = 0.745 Hz."""
+    2.5 x 0.21 + 0.12 + 0.1 = 0.745 Hz. A trusted speed bounds from below by the same
+    ramp and floor (Tracker.rate_least)."""
     from bladesonar.analyzer import new_analyzer
     from bladesonar.tuning import ANCHOR_TRUST_S, UNTRUSTED_FACTOR
     cfg = config.Config()
@@ -920,6 +921,21 @@ def test_a_speed_published_briefly_bounds_new_lines_at_a_multiple_of_itself(refe
     an.state = _d("reversed", 0.3)
     bound_at(20.0)
     assert bound_at(22.0) == pytest.approx(0.3 + 0.1)
+    # and from below, by the same ramp and floor: 0.5 Hz trusted at 30 s, no new line
+    # under 0.5 - 0.1 = 0.4 Hz then, 0.4 - 0.3 x 0.5 = 0.25 Hz half a second later, and
+    # none at all from 31.33 s (a fan may be at rest by then); a stop sets none
+    an.state = _d("same", 0.5)
+    bound_at(28.0)
+    bound_at(30.0)
+    assert an.tracker.rate_least * hz == pytest.approx(0.4)
+    an.state = _d("unknown")
+    bound_at(30.5)
+    assert an.tracker.rate_least * hz == pytest.approx(0.25)
+    bound_at(31.4)
+    assert an.tracker.rate_least == 0.0
+    an.state = _d("stopped")
+    bound_at(32.0)
+    assert an.tracker.rate_least == 0.0
 
 
 def _walk(seq, prf=34.0):

@@ -298,7 +298,8 @@ class RateBound:
 
     A speed above three times the floor bounds only once it has been published for
     ANCHOR_TRUST_S (a first answer may be on a wrong line, and would keep out the right
-    one); until then it bounds at UNTRUSTED_FACTOR times itself.
+    one); until then it bounds at UNTRUSTED_FACTOR times itself. A trusted speed also
+    bounds from below, by the same ramp and floor: a new line may not be much slower.
     """
 
     def __init__(self, floor_hz: float, max_ramp_hz_s: float,
@@ -331,6 +332,14 @@ class RateBound:
                 bound = min(bound, v0 + 2.0 * self.max_ramp_hz_s * max(t_s - t0, 0.0)
                             + 2.0 * self.floor_hz)
         tracker.limit_rate(self._cycles(bound) if math.isfinite(bound) else math.inf)
+        # nor much slower: a line the matches of a look-alike angle make up, standing
+        # nearly still, replaced a track on a spin-up at 0.5 Hz and drove the answer
+        # through zero (spent held-out 800013, a false `reversed`)
+        least = 0.0
+        if self._anchor is not None:
+            t0, v0 = self._anchor
+            least = v0 - 2.0 * self.max_ramp_hz_s * max(t_s - t0, 0.0) - 2.0 * self.floor_hz
+        tracker.rate_least = self._cycles(least) if least > 0.0 else 0.0
 
 
 def _by_number(k: int, k0: int | None, group: int, first: bool, every: int

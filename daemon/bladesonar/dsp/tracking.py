@@ -504,6 +504,10 @@ class Tracker:
     #: how fast a fan last published at some speed, or at rest, can have sped up since
     #: (analyzer.RateBound)
     rate_bound: float = math.inf
+    #: smallest |rate| a new line may have (cycles per pulse): a fan published turning
+    #: at some speed cannot have slowed faster than the steepest ramp since
+    #: (analyzer.RateBound); 0 when nothing is known
+    rate_least: float = 0.0
     _recent: deque[tuple[int, float, float]] = field(default_factory=deque)
     # (weight, accepted) of _recent
     _accepted: deque[tuple[float, bool]] = field(default_factory=deque)
@@ -767,7 +771,7 @@ class Tracker:
             return False
         k, rate, phase, coh = self._fit()
         self.coherence = coh
-        if coh < self.settings.min_coherence:
+        if coh < self.settings.min_coherence or abs(rate) < self.rate_least:
             return False
         self._lock(k, rate, phase, coh)
         return True
@@ -812,7 +816,8 @@ class Tracker:
             return False
         k, rate, phase, coh = self._fit()
         span = max(float(k[-1] - k[0]), 1.0)
-        if coh < st.min_coherence or abs(rate - self._x[1]) <= 1.0 / span:
+        if coh < st.min_coherence or abs(rate - self._x[1]) <= 1.0 / span \
+                or abs(rate) < self.rate_least:
             return False
         if aliases is not None and len(aliases) and \
                 float(np.min(np.abs(np.asarray(aliases) - rate))) <= 1.0 / span:
