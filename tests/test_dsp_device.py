@@ -194,6 +194,26 @@ def test_burst_gate_skips_bursts_and_keeps_its_bar():
     assert m.sum() == 30
 
 
+def test_burst_gate_takes_a_lasting_step_as_a_new_level():
+    """A step up of the residual's level that lasts (x20, as a fan coming to rest where
+    the static estimate had not seen its blade, at 30 dB SNR: spent held-out 800006) is
+    skipped for BURST_LONGEST pulses and then learned as the new level: the pulses after
+    it are analysed. On the old gate every pulse after the step was a burst, for the
+    rest of the day. A real burst, shorter, is still skipped whole, and so is one on the
+    new level."""
+    g = dev.BurstGate()
+    rng = np.random.default_rng(4)
+    level = 1.0 + 0.2 * rng.random(600)
+    level[200:] *= 20.0
+    level[450:480] = 1000.0                                    # a burst on the new level
+    flags = np.array([g(float(e)) for e in level])
+    assert not flags[:200].any()
+    assert flags[200:200 + dev.BURST_LONGEST - 1].all()
+    assert not flags[200 + dev.BURST_LONGEST - 1:450].any()
+    assert flags[450:480].all() and not flags[480:].any()
+    assert g.relevels == 1 and g.bursts == dev.BURST_LONGEST - 1 + 30
+
+
 def test_gain_wander_of_a_known_agc():
     prf = FS / PRI
     t = np.arange(2000) / prf

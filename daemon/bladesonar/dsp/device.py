@@ -31,6 +31,10 @@ MAX_RT60_S = 5.0
 BURST_RATIO = 8.0
 #: Pulses the running typical residual energy is the median of.
 BURST_HISTORY = 64
+#: Consecutive pulses over the bar after which they are no burst but a new level (the
+#: room or the device changed), learned afresh: about 2 s, where an interference burst
+#: lasts a fraction of a second.
+BURST_LONGEST = 64
 #: A reference whose gain wanders by more than this (peak to peak, dB) was recorded
 #: through an AGC: its pulses, and those of every analysis against it, are scaled to the
 #: static part's gain before the static part is removed.
@@ -194,10 +198,20 @@ def burst_mask(energy: np.ndarray, ratio: float = BURST_RATIO) -> np.ndarray:
 class BurstGate:
     """Streaming burst detection, state in and out: a pulse whose residual energy is
     BURST_RATIO times the median of the last BURST_HISTORY accepted pulses' is a burst.
-    Bursts are not added to the history, so a long burst does not raise the bar."""
+    Bursts are not added to the history, so a long burst does not raise the bar; but
+    BURST_LONGEST of them in a row are a new level, and the history starts afresh from
+    it. Without that a step up in the residual's level (at 30 dB SNR a fan coming to rest
+    where the static estimate had not seen its blade) made every later pulse a burst:
+    the analysis went blind for minutes (spent held-out 800006: a stop and the next
+    start missed)."""
 
-    def __init__(self, ratio: float = BURST_RATIO, history: int = BURST_HISTORY) -> None:
+    _run = 0        # bursts in a row (class defaults: gates pickled before they existed)
+    relevels = 0    # times a run of BURST_LONGEST bursts was taken as a new level
+
+    def __init__(self, ratio: float = BURST_RATIO, history: int = BURST_HISTORY,
+                 longest: int = BURST_LONGEST) -> None:
         self.ratio = float(ratio)
+        self.longest = int(longest)
         self._hist = np.zeros(int(history))
         self._n = 0
         self._typical = 0.0
@@ -215,8 +229,14 @@ class BurstGate:
         history's median is refreshed every 8 pulses (a per-pulse median cost the
         daemon 10 % of its time; the level drifts far slower)."""
         if self._n >= 8 and self._typical > 0 and energy > self.ratio * self._typical:
-            self.bursts += 1
-            return True
+            self._run += 1
+            if self._run < getattr(self, "longest", BURST_LONGEST):
+                self.bursts += 1
+                return True
+            # no burst lasts this long: the level itself has changed
+            self._n, self._typical = 0, 0.0
+            self.relevels += 1
+        self._run = 0
         self._hist[self._n % len(self._hist)] = energy
         self._n += 1
         if self._n % 8 == 0:
