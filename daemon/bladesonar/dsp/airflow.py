@@ -93,7 +93,8 @@ SIDES = "the mirror excess's peaks at lags 1 and 2 lie on opposite sides"
 #: A plain call whose lag-1 peak lies within this many samples of zero shift, in a
 #: recording whose mirror excess has ``SIDES``, is unknown: on tuning seed 340 (2.6 m off
 #: the axis, 0.69 Hz) such a call was wrong with t 31; on seeds 1-400 the rule silenced
-#: one right call besides (seed 34).
+#: one right call besides (seed 34). (Seed 340's wrong call came from glints taken for
+#: bursts; with the median-square burst mask it calls right, t -309.)
 NEAR_ZERO = 2.0
 #: A call whose correlation peak at some lag lies at the end of the shifts looked at is
 #: unknown: the correlation still rises past it, so there is no located peak. On tuning
