@@ -37,6 +37,22 @@ def test_the_direction_rule():
     d, src, w = reference_direction("ccw", _a("up", 8.0), cfg)
     assert (d, src) == ("ccw", "given") and len(w) == 1
     assert "contradicts" in w[0] and "up" in w[0] and "+8.0" in w[0] and "means cw" in w[0]
+    # what the estimates against the old reference reported (the direction a person set
+    # on it, or the one the daemon already showed) is kept over the airflow: a Learn
+    # press must not turn the user's frame round; a contradiction is a warning
+    assert reference_direction(None, _a("unknown", 1), cfg, "ccw") == ("ccw", "carried", [])
+    assert reference_direction(None, _a("down", -8), cfg, "ccw") == ("ccw", "carried", [])
+    d, src, w = reference_direction(None, _a("up", 8.0), cfg, "ccw")
+    assert (d, src) == ("ccw", "carried") and len(w) == 1
+    assert "carried" in w[0] and "means cw" in w[0] and "+8.0" in w[0]
+    # a direction a person chose for the new reference wins over the carried one
+    assert reference_direction("cw", _a("unknown", 1), cfg, "ccw") == ("cw", "given", [])
+    assert reference_direction("unknown", _a("up", 8), cfg, "ccw") == ("unknown", "given", [])
+    # nothing carried: the airflow, else unknown
+    for nothing in (None, "unknown"):
+        assert reference_direction(None, _a("up", 8), cfg, nothing) == ("cw", "airflow", [])
+        assert reference_direction(None, _a("unknown", 1), cfg, nothing) == \
+            ("unknown", "none", [])
 
 
 @pytest.fixture(scope="module")
@@ -101,9 +117,14 @@ def test_the_daemons_learner_sets_the_direction_from_the_airflow(up_wav, tmp_pat
     got = learner.learn(x, cfg, "unknown", path)
     assert got["direction"] == "cw" and got["direction_source"] == "airflow"
     assert got["airflow"] == "up"
-    # what the estimates against an old reference said does not outvote the airflow
-    got = learner.learn(x, cfg, "unknown", path, "ccw")
-    assert got["direction"] == "cw" and got["direction_source"] == "airflow"
+    assert got["direction_carried"] == "unknown" and got["direction_estimates"] == {}
+    # what the estimates against the old reference said throughout is kept (the user's
+    # frame), the airflow that contradicts it a warning; the figures that decided it out
+    got = learner.learn(x, cfg, "unknown", path, "ccw", {"ccw": 40, "other": 2})
+    assert got["direction"] == "ccw" and got["direction_source"] == "carried"
+    assert got["airflow"] == "up" and any("contradicts" in w for w in got["warnings"])
+    assert got["direction_carried"] == "ccw"
+    assert got["direction_estimates"] == {"ccw": 40, "other": 2}
     # a person's choice wins, with the contradiction in the warnings
     got = learner.learn(x, cfg, "ccw", path)
     assert got["direction"] == "ccw" and got["direction_source"] == "given"

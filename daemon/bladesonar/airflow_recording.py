@@ -78,26 +78,36 @@ def airflow_keys(a: af.Airflow, cfg: Any) -> dict[str, Any]:
     return out
 
 
-def reference_direction(given: str | None, a: af.Airflow, cfg: Any
-                        ) -> tuple[str, str, list[str]]:
+def reference_direction(given: str | None, a: af.Airflow, cfg: Any,
+                        carried: str | None = None) -> tuple[str, str, list[str]]:
     """The direction a new reference is stored with: (direction, where it came from,
-    warnings). A given cw/ccw wins (``given``); else a confident airflow sets it
-    (``airflow``); else it stays ``unknown`` (``none``). A given direction that a
-    confident airflow contradicts is kept, with a warning that has the figures."""
+    warnings). A given cw/ccw wins (``given``: a person chose it); else a ``carried``
+    cw/ccw (``carried``: the rotation the running estimates reported against the old
+    reference, whose direction a person set or the daemon already reported, so a new
+    reference keeps the frame the user sees); else a confident airflow sets it
+    (``airflow``); else it stays ``unknown`` (``none``). A given or carried direction that
+    a confident airflow contradicts is kept, with a warning that has the figures."""
     turn = rotation_of(a.airflow, cfg.scene.downdraft_rotation)
-    if given in ("cw", "ccw"):
-        warnings = []
-        if turn is not None and turn != given:
-            warnings.append(
-                f"the direction given ({given}) contradicts the airflow measured on the "
-                f"recording: {a.airflow} (confidence {a.confidence:.2f}, t {a.t:+.1f}, "
-                f"glint shift {a.shift:+.3f} samples per pulse), which with scene."
-                f"downdraft_rotation {cfg.scene.downdraft_rotation} means {turn}; the "
-                f"direction given is stored, check it (or leave it out and let the "
-                f"airflow set it)")
-        return given, "given", warnings
     if given == "unknown":
         return "unknown", "given", []
+    for chosen, source in ((given, "given"), (carried, "carried")):
+        if chosen not in ("cw", "ccw"):
+            continue
+        warnings = []
+        if turn is not None and turn != chosen:
+            what = (f"the direction given ({chosen})" if source == "given" else
+                    f"the direction carried from the estimates against the previous "
+                    f"reference ({chosen})")
+            fix = ("check it (or leave it out and let the airflow set it)" if source ==
+                   "given" else "if the airflow is right, set the reference's direction "
+                   "to it")
+            warnings.append(
+                f"{what} contradicts the airflow measured on the recording: {a.airflow} "
+                f"(confidence {a.confidence:.2f}, t {a.t:+.1f}, glint shift {a.shift:+.3f} "
+                f"samples per pulse), which with scene.downdraft_rotation "
+                f"{cfg.scene.downdraft_rotation} means {turn}; the direction {source} is "
+                f"stored, {fix}")
+        return chosen, source, warnings
     if turn is not None:
         return turn, "airflow", []
     return "unknown", "none", []
@@ -159,13 +169,15 @@ class ReferenceAirflow:
 
     direction: str
     source: str
-    """``given`` (by the user), ``airflow`` (set by the measured airflow) or ``none``."""
+    """``given`` (by the user), ``carried`` (from the running estimates), ``airflow``
+    (set by the measured airflow) or ``none``."""
     warnings: tuple[str, ...]
     keys: dict[str, Any]
     """The ``airflow*`` keys (:func:`airflow_keys`) and ``direction_source``."""
 
 
-def reference_airflow(x: np.ndarray, cfg: Any, given: str | None) -> ReferenceAirflow:
+def reference_airflow(x: np.ndarray, cfg: Any, given: str | None,
+                      carried: str | None = None) -> ReferenceAirflow:
     """Measure the airflow on a reference's recording ``x`` and choose its direction
     (:func:`reference_direction`). A recording the stage cannot use (a gate that does not
     fit) is an unknown airflow: the reference itself says what is wrong with it."""
@@ -173,7 +185,7 @@ def reference_airflow(x: np.ndarray, cfg: Any, given: str | None) -> ReferenceAi
         a = recording_airflow(x, cfg)
     except InputError as exc:
         a = af.Airflow("unknown", 0.0, 0.0, 0.0, 0, str(exc))
-    direction, source, warnings = reference_direction(given, a, cfg)
+    direction, source, warnings = reference_direction(given, a, cfg, carried)
     keys = airflow_keys(a, cfg)
     keys["direction_source"] = source
     return ReferenceAirflow(direction, source, tuple(warnings), keys)

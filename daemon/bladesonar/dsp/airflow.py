@@ -10,7 +10,8 @@ room and wherever the sensor stands.
 The stage, on drift-aligned gated pulses (dsp/pulses.py):
 
 1. the static room removed by a **two-sided** running mean (forward and backward
-   exponential averages of the pulses, interference bursts left out): the causal running
+   exponential averages of the pulses, interference bursts left out: a pulse whose
+   median square stands out, never one with a bright glint in a few samples): the causal running
    mean of the fingerprint leaves a fading copy of *earlier* echoes behind a moving one,
    a ghost on one side only that biased the sign; then each pulse's least-squares fit by
    the local static mean and its derivative along range is removed (a sub-sample timing
@@ -92,7 +93,8 @@ SIDES = "the mirror excess's peaks at lags 1 and 2 lie on opposite sides"
 #: A plain call whose lag-1 peak lies within this many samples of zero shift, in a
 #: recording whose mirror excess has ``SIDES``, is unknown: on tuning seed 340 (2.6 m off
 #: the axis, 0.69 Hz) such a call was wrong with t 31; on seeds 1-400 the rule silenced
-#: one right call besides (seed 34).
+#: one right call besides (seed 34). (Seed 340's wrong call came from glints taken for
+#: bursts; with the median-square burst mask it calls right, t -309.)
 NEAR_ZERO = 2.0
 #: A call whose correlation peak at some lag lies at the end of the shifts looked at is
 #: unknown: the correlation still rises past it, so there is no located peak. On tuning
@@ -178,10 +180,14 @@ def moving_part(pulses: np.ndarray, valid: np.ndarray, prf: float, *,
     ok = np.asarray(valid, bool).copy()
     alpha = min(1.0, 1.0 / (STATIC_S * prf))
     static = two_sided_mean(x, ok, alpha)
+    # each pulse's level as the median of its squares (as reference_build and the
+    # analyzer take it): interference covers the window, a glint a few samples; the mean
+    # square took a flat fan's brightest glints for bursts and left some passes' approach
+    # or recede glints out, and the rest called an airflow it has not (t up to 38)
     energy = np.zeros(n)
     for a, b in _row_blocks(n):
         r = x[a:b] - static[a:b]
-        energy[a:b] = np.where(ok[a:b], np.mean(r * r, axis=1), 0.0)
+        energy[a:b] = np.where(ok[a:b], median(r * r, axis=1), 0.0)
     burst = np.zeros(n, bool)
     burst[ok] = dev.burst_mask(energy[ok])
     if burst.any():            # again without the bursts in the static estimate

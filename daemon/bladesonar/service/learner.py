@@ -125,24 +125,28 @@ class ReferenceJobs:
 
 
 def learn(x: np.ndarray, cfg: Config, direction: str, path: Path,
-          carried: str = "unknown") -> dict[str, Any]:
+          carried: str = "unknown", estimates: dict[str, int] | None = None
+          ) -> dict[str, Any]:
     """Fold ``x`` (a contiguous recording of the fan turning) into a reference, check it,
     keep the old file as ``.previous`` and write the new one atomically; the reference's
-    summary (with the airflow measured on ``x`` and ``direction_source``) and its id out.
+    summary (with the airflow measured on ``x``, ``direction_source`` and what decided
+    it) and its id out.
 
-    Its direction: ``direction`` when cw/ccw (a person chose it; a confident airflow
-    that contradicts it is a warning), else the airflow's when confident (nobody sets
-    it), else ``carried`` (what the estimates against the old reference said), else
-    unknown. Raises EstimationError when the recording shows no steady rotation or too
-    little of it (``reference.min_quality``)."""
+    Its direction (airflow_recording.reference_direction): ``direction`` when cw/ccw (a
+    person chose it with the select while there was no reference), else ``carried`` when
+    cw/ccw (the rotation the estimates against the old reference reported throughout the
+    recording, counted in ``estimates``: the direction the user set, or already saw, is
+    kept), else the airflow's when confident (nobody set one), else unknown. A confident
+    airflow that contradicts a chosen or carried direction is a warning. Raises
+    EstimationError when the recording shows no steady rotation or too little of it
+    (``reference.min_quality``)."""
     from ..airflow_recording import reference_airflow
     from ..io.reference import keep_previous, write_reference
     from ..reference_build import build_reference, check_compatible
 
-    chosen = reference_airflow(x, cfg, direction if direction in ("cw", "ccw") else None)
+    chosen = reference_airflow(x, cfg, direction if direction in ("cw", "ccw") else None,
+                               carried if carried in ("cw", "ccw") else None)
     direction, source = chosen.direction, chosen.source
-    if source == "none" and carried in ("cw", "ccw"):
-        direction, source = carried, "carried"
     ref = build_reference(x, cfg, direction)
     if chosen.warnings:
         ref.meta["warnings"] = [*ref.meta.get("warnings", []), *chosen.warnings]
@@ -158,6 +162,8 @@ def learn(x: np.ndarray, cfg: Config, direction: str, path: Path,
     out = ref.summary()
     out.update(chosen.keys)
     out["direction_source"] = source
+    out["direction_carried"] = carried if carried in ("cw", "ccw") else "unknown"
+    out["direction_estimates"] = dict(estimates or {})
     out["id"] = digest[:12]
     return out
 

@@ -288,14 +288,22 @@ class ReferenceKeeper:
             self.learn_failure = None
             self.learn_note = None
             self.learn_wait = cfg.reference.retry_s
-            log.info("reference learned (%s): %s, %.3f Hz, quality %.2f, direction %s", why,
+            log.info("reference learned (%s): %s, %.3f Hz, quality %.2f, direction %s (%s; "
+                     "carried %s, airflow %s, confidence %s, t %s: %s)", why,
                      info.get("id"), info.get("rate_hz", float("nan")),
-                     info.get("quality", float("nan")), info.get("direction"))
+                     info.get("quality", float("nan")), info.get("direction"),
+                     info.get("direction_source"), info.get("direction_carried"),
+                     info.get("airflow"), info.get("airflow_confidence"),
+                     info.get("airflow_t"), info.get("airflow_reason"))
+            # what decided the direction, for whoever wonders why it is what it is
             publisher.publish_event(
                 EventKind.REFERENCE_LEARNED, reference=info.get("id"), rate_hz=info.get("rate_hz"),
                 quality=info.get("quality"), direction=info.get("direction"), source=why,
                 direction_source=info.get("direction_source"),
+                direction_carried=info.get("direction_carried"),
+                direction_estimates=info.get("direction_estimates"),
                 airflow=info.get("airflow"), airflow_confidence=info.get("airflow_confidence"),
+                airflow_t=info.get("airflow_t"), airflow_reason=info.get("airflow_reason"),
                 warnings=info.get("warnings") or [])
             # read back what was written, new analyzer, re-align
             self.analyzer = None

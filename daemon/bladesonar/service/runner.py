@@ -650,13 +650,19 @@ class Service:
         if not rec.add(block):
             return
         ref_known = self.keeper.direction_known()
-        # a direction a person chose wins; else the airflow measured on the recording
-        # (learner.learn), else what the estimates against the old reference said
+        # a direction a person chose wins; else what the estimates against the old
+        # reference said throughout; else the airflow measured on the recording
+        # (learner.learn, airflow_recording.reference_direction)
         direction = self.keeper.pending_direction or "unknown"
+        carried = rec.direction(ref_known)
+        estimates = {k: int(v) for k, v in sorted(rec.rotations.items())}
+        log.info("reference recording complete (%s): direction chosen %s, the estimates "
+                 "named %s (old reference's direction %s): carried %s", rec.why, direction,
+                 estimates or "nothing", "known" if ref_known else "unknown", carried)
         x = rec.samples()
         self._rec = None
         if not self.jobs.submit("learn", learner.learn, x, self.cfg, direction,
-                                self.cfg.reference_path, rec.direction(ref_known)):
+                                self.cfg.reference_path, carried, estimates):
             log.warning("a reference job is running; the recording is dropped")
             return
         self._learn_why = rec.why
