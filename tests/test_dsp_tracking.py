@@ -725,3 +725,27 @@ def test_a_re_check_takes_no_line_slower_than_the_fan_can_have_slowed():
     assert moved and abs(tr.track_rate[0]) < 0.2 * 0.5 * 4 / 34.0
     moved, tr = run(0.4 * 4 / 34.0)
     assert not moved and abs(tr.track_rate[0] - 0.5 * 4 / 34.0) < 0.01 * 0.5 * 4 / 34.0
+
+
+
+def test_faint_matches_do_not_keep_a_track_that_rejects_every_clear_one():
+    """A track standing still on a blade at rest in view, then clear matches half a
+    blade period away (the fan turning) with a faint one at the track's own phase
+    between each two (no blade in view there). A faint match lies in any gate: counted
+    as vouching for the line it reset the run of outliers, and a standing track
+    rejected every clear match for good (spent held-out 800007: 0.6 Hz, a start
+    published 27 s late). Six clear matches rejected in a row (Tracker.clear_run) give
+    the track up, whatever faint ones come between; fewer do not."""
+    def run(n_clear):
+        tr = Tracker(_coasting_settings(int(2 * 34), coast_min_rate=0.05 * 6 / 34.0))
+        for k in range(40):
+            tr.update(k, 0.3, 0.8)
+        ident = tr.identity
+        for j in range(n_clear):
+            tr.update(40 + 2 * j, 0.3, 0.001)
+            tr.update(41 + 2 * j, 0.8, 0.9)
+        return ident, tr
+    ident, tr = run(5)
+    assert tr.locked and tr.identity == ident
+    ident, tr = run(6)
+    assert not (tr.locked and tr.identity == ident)

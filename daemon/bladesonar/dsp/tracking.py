@@ -480,6 +480,11 @@ class Tracker:
     last_k: int | None = None
     outlier_run: int = 0
     outliers: int = 0
+    #: clear matches rejected in a row, the faint ones between them passed over: a faint
+    #: match (no blade in view) lies in any gate and resets the run of outliers, so that
+    #: a track standing still at a blind angle outlived a fan turning at 0.6 Hz whose
+    #: every clear match it rejected (spent held-out 800007: a start 27 s late)
+    clear_run: int = 0
     clear_k: int | None = None   # pulse of the last clear match the track accepted
     clear_credit: int = 0        # clear-match credit (COAST_STREAK, COAST_CREDIT)
     coasted: int = 0             # weak matches passed over while coasting (_coasts)
@@ -609,6 +614,7 @@ class Tracker:
             return False
         self._x = self._P = self._fx = self._fP = None
         self.outlier_run = 0
+        self.clear_run = 0
         self.given_up += 1
         return True
 
@@ -788,6 +794,7 @@ class Tracker:
         self.start_k = int(k[0])
         self.locked_k = int(k[-1])
         self.outlier_run = 0
+        self.clear_run = 0
         self.clear_k = max((kk for kk, _, q in self._recent if q >= self.settings.min_info),
                            default=None)
         self.clear_credit = 0
@@ -844,6 +851,7 @@ class Tracker:
         self.last_k = int(k)
         self.relocks += 1
         self.outlier_run = 0
+        self.clear_run = 0
 
     def update(self, k: int, z: float, quality: float) -> TrackState:
         """Fold in pulse ``k`` matched at phase ``z`` (cycles) with quality in [0, 1]."""
@@ -914,7 +922,8 @@ class Tracker:
             self.outlier_run += 1
             if clear:
                 self.clear_credit = max(self.clear_credit - 1, 0)
-            if self.outlier_run >= st.reacquire_after:
+                self.clear_run += 1
+            if self.outlier_run >= st.reacquire_after or self.clear_run >= st.reacquire_after:
                 self._x = self._fx = self._fP = None
                 self._init()
             return True
@@ -929,6 +938,7 @@ class Tracker:
         self.outlier_run = 0
         self.updates += 1
         if clear:
+            self.clear_run = 0
             self.clear_k = k
             self.clear_credit = min(self.clear_credit + 1, COAST_CREDIT)
         return False
