@@ -749,3 +749,18 @@ def test_faint_matches_do_not_keep_a_track_that_rejects_every_clear_one():
     assert tr.locked and tr.identity == ident
     ident, tr = run(6)
     assert not (tr.locked and tr.identity == ident)
+
+
+def test_the_evidence_per_match_stays_finite_when_no_match_has_strayed_for_hours():
+    """The stray share is a running mean: after hours of clean matches (34 pulses a
+    second, half of them clear: 50 000 in 50 minutes) it decays to a subnormal number or
+    zero, and a match far in a tail then has a density that underflows too. The log
+    likelihood is still a number, and a far match still counts against its model."""
+    from bladesonar.dsp.tracking import STRAY_MEMORY, STRAY_START, _mixture
+    stray = STRAY_START
+    for _ in range(60000):
+        stray += (0.0 - stray) / STRAY_MEMORY
+    assert stray < 1e-300                  # subnormal; and zero itself must do too
+    for share in (stray, 0.0):
+        far, near = _mixture(0.4, 1e-4, share), _mixture(0.0, 1e-4, share)
+        assert np.isfinite(far) and far < near

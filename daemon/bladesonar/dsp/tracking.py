@@ -159,7 +159,9 @@ def _mixture(nu: float, s: float, stray: float) -> float:
     match is bounded, so that where the fingerprint has look-alike angles one match at
     the wrong one cannot swing it."""
     g = math.exp(-0.5 * nu * nu / s) / math.sqrt(2.0 * math.pi * s)
-    return math.log((1.0 - stray) * g + stray)
+    # (guarded: over hours of clean matches the measured share decays toward zero, and a
+    # match far out then has a density that underflows)
+    return math.log(max((1.0 - stray) * g + stray, 1e-300))
 
 
 def _update(x: Vec, P: Vec, z: float, r: float) -> tuple[Vec, Vec]:
