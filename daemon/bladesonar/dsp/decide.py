@@ -32,6 +32,7 @@ from ..answer import (
 )
 from ..answer import Direction, RateState
 from .fingerprint import envelope_features
+from .stats import median
 
 #: New pulses whose lag energies one matrix product gives (MotionMeter.preview): each
 #: product also spans the max_lag pulses before them, so a few dozen at a time does
@@ -380,8 +381,7 @@ class RestFloor:
         if at_rest and math.isfinite(still) and still < self.base + self.max_shift:
             self._seen.append(float(still))
             if len(self._seen) >= self.least:
-                v = sorted(self._seen)
-                med = 0.5 * (v[(len(v) - 1) // 2] + v[len(v) // 2])
+                med = float(median(np.fromiter(self._seen, np.float64, len(self._seen))))
                 shift = min(max(med - self.noise_median, 0.0), self.max_shift)
                 self.threshold = self.base + shift
         return self.threshold

@@ -905,10 +905,11 @@ class Tracker:
         # a match the reported follower expects is no sign against the track's line
         # (Tracker.recheck) even when the lagging track rejects it
         self._followed = bool(expected)
+        rejected = self._rejects(nu, s, slew)
         if clear:
-            stray = self._rejects(nu, s, slew) and (f is None or self._rejects(*f, slew))
+            stray = rejected and (f is None or self._rejects(*f, slew))
             self.stray += (float(stray) - self.stray) / STRAY_MEMORY
-        if not refused and self._rejects(nu, s, slew) and self._follower_takes(f):
+        if not refused and rejected and self._follower_takes(f):
             # the constant-rate track lags a ramp the follower is on: it takes the
             # follower's line instead of counting the match out (a run of such outliers
             # would give the track, and the follower with it, up in mid-ramp)
@@ -919,7 +920,8 @@ class Tracker:
             self._P = (f00, f01, f01, f11)
             self.syncs += 1
             nu, s = _innovation(self._x, self._P, z, r)
-        if refused or self._rejects(nu, s, slew):
+            rejected = self._rejects(nu, s, slew)
+        if refused or rejected:
             self.outliers += 1
             self.outlier_run += 1
             if clear:
