@@ -205,8 +205,10 @@ class BurstGate:
     the analysis went blind for minutes (spent held-out 800006: a stop and the next
     start missed)."""
 
-    _run = 0        # bursts in a row (class defaults: gates pickled before they existed)
-    relevels = 0    # times a run of BURST_LONGEST bursts was taken as a new level
+    # (class defaults: gates pickled before these existed)
+    _run = 0                  # bursts in a row
+    relevels = 0              # times a run of `longest` bursts was taken as a new level
+    longest = BURST_LONGEST
 
     def __init__(self, ratio: float = BURST_RATIO, history: int = BURST_HISTORY,
                  longest: int = BURST_LONGEST) -> None:
@@ -230,7 +232,7 @@ class BurstGate:
         daemon 10 % of its time; the level drifts far slower)."""
         if self._n >= 8 and self._typical > 0 and energy > self.ratio * self._typical:
             self._run += 1
-            if self._run < getattr(self, "longest", BURST_LONGEST):
+            if self._run < self.longest:
                 self.bursts += 1
                 return True
             # no burst lasts this long: the level itself has changed
