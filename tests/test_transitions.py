@@ -328,6 +328,60 @@ def test_a_fan_turning_either_way_starts_and_stops_in_a_doubtful_room():
     assert out[40] == ("unknown", True)
 
 
+def _lost():
+    """A window with no track at all (no consistent match against the reference)."""
+    return Decision(Direction.UNKNOWN, None, None, None, None, 0.0, "no consistent match")
+
+
+def _weak(rate=0.4):
+    """A window whose track is too weak to claim the fan turns (weak evidence)."""
+    return Decision(Direction.UNKNOWN, None, None, rate, None, 0.3, "weak evidence")
+
+
+def test_a_known_direction_is_carried_through_doubt_at_its_speed_until_the_fan_nears_zero():
+    """Closed form, 34 pulses/s, the default reversal physics (through zero at 0.3 Hz/s,
+    a new direction from 0.1 Hz): a fan confirmed turning one way cannot turn the other
+    without passing through zero, where it spends at least 2 * 0.1 / 0.3 = 0.67 s below
+    0.1 Hz. So windows in doubt only about the direction (a doubtful room's mirror, an
+    alias rate) at the known speed publish the known direction; an alias speed is left
+    unknown without ending the carry; an answer below 0.1 Hz, or more than 0.33 s of
+    windows that do not see the fan turning, end it, and then doubt is unknown again."""
+    def run(seq):
+        tr = Transitions(TransitionSettings(confirm_s=0.5), 34.0)
+        out = []
+        for i, d in enumerate(["stopped"] * 40 + ["same"] * 30 + seq):
+            o, _ = tr.step(i / 34.0, i, d if isinstance(d, Decision) else _d(d))
+            o = tr.carry(i / 34.0, o)
+            out.append((o.direction.value, o.rate_hz))
+        return out[70:]
+    # doubt at the speed, at a slowly changing speed, an alias speed between: carried
+    out = run([_doubt(0.4)] * 10 + [_weak(0.4)] * 10 + [_doubt(1.2)] * 40
+              + [_doubt(0.4 + 0.002 * i) for i in range(40)])
+    assert out[:10] == [("same", 0.4)] * 10
+    # a weak track or an alias speed keeps the carry without being carried
+    assert [d for d, _ in out[10:60]] == ["unknown"] * 50
+    assert [d for d, _ in out[60:]] == ["same"] * 40 and out[-1][1] == pytest.approx(0.478)
+    # the band is the answered speed's: weak tracks 20 % apart do not walk the rate away
+    out = run([_doubt(0.4 * 1.2 ** i) for i in range(4)])
+    assert [d for d, _ in out] == ["same", "same", "unknown", "unknown"]
+    # a reversal at 0.3 Hz/s, the direction in doubt throughout: down to 0.1 Hz in 1 s,
+    # through zero to 0.1 Hz the other way in 0.67 s (23 pulses) seen as windows with no
+    # track, as slow tracks or as a stop's first answers, then up: the way back up is
+    # unknown, though it passes the answered speed again
+    down = [_doubt(0.4 - 0.3 * i / 34) for i in range(34)]
+    up = [_doubt(0.1 + 0.3 * i / 34) for i in range(34)]
+    for zero in ([_lost()] * 23, [_weak(0.05)] * 23, [_d("stopped")] * 2 + [_lost()] * 21):
+        out = run(down + zero + up)
+        # carried while within a quarter of the answered 0.4 Hz (down to 0.303 Hz)
+        assert [d for d, _ in out[:34]] == ["same"] * 12 + ["unknown"] * 22
+        assert [d for d, _ in out[34:]] == ["unknown"] * 57
+    # 0.32 s between answers that see the fan turning is bridged, 0.53 s is not
+    gap = [_lost()] * 10
+    assert [d for d, _ in run(gap + [_doubt(0.4)] * 5)[10:]] == ["same"] * 5
+    gap = [_lost()] * 17
+    assert [d for d, _ in run(gap + [_doubt(0.4)] * 5)[17:]] == ["unknown"] * 5
+
+
 def test_a_slow_doubtful_answer_starts_nothing():
     """Below the rate a new direction needs (twice the floor) a doubtful answer is no
     start either: the end of a spin-down leaves slow, shaky tracks."""

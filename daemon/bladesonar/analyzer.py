@@ -552,7 +552,8 @@ class PulseAnalyzer:
                 self.motion_fed = float(pm.motion[q])
                 d = self.decided = self.decision((self.motion_fed, float(ps.motion[q])))
                 state, fired = self.transitions.step(t_s, k, d, self._since)
-                self.state, changed = self._feed_back(k, t_s, d, state)
+                state, changed = self._feed_back(k, t_s, d, state)
+                self.state = self.transitions.carry(t_s, state)
                 self.state_edge = edge
                 self.new_events.extend(fired)
                 self._since = 0

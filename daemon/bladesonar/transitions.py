@@ -21,6 +21,12 @@ rule applies. :meth:`Transitions.step` is the rules in their order:
 5. ``TOO_SOON``: a reversal waits until a fan could have made it;
 6. ``CONFIRMING``: a new kind needs ``confirm_s`` (a stop ``stop_confirm_s``) of answers.
 
+A decision in doubt only about the direction at the speed the known direction was last
+answered at is then published as that direction (:meth:`carry`, called on the state
+after the analysis has taken its feedback from it: the carry changes what is published,
+not what the analysis learns): a fan cannot reverse without passing through zero, which
+ends the carry.
+
 Between rules 2 and 3 the machine notes what the decision shows of the fan (the chain of
 answers at its speed, the slowing line, when it was last seen turning, the candidate),
 which the later rules read. Why each rule is there, with the cases and figures behind
@@ -192,6 +198,10 @@ class Transitions:
         self._known_seen: tuple[float, float] | None = None   # (t, rate), known direction
         self._known_checked = False          # an answer of the known direction was on a
                                              # line that beat its mirror image
+        self._carry_from: tuple[float, float] | None = None   # (t, rate) the known
+                                             # direction last answered at (carry)
+        self._carry_seen = -math.inf         # the last answer that saw the fan turn
+        self._in_doubt = False               # the last step's decision had no kind
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
     @property
@@ -205,6 +215,7 @@ class Transitions:
         every few pulses); (the state to publish, events confirmed now) out. The hold
         rules in their order, with what the decision shows of the fan noted between."""
         self.hold = None
+        self._in_doubt = False
         cand = self._candidate(d)
         held = self._slow_new_direction(t_s, d, cand)
         if held is not None:
@@ -221,16 +232,59 @@ class Transitions:
         self._note_known(t_s, d, cand)
         self._note_candidate(t_s, d, cand, prev)
         if cand is None:
+            self._in_doubt = True
             return d, []
         self._count_support(cand, pulse, pulses)
         for rule in (self._mirror_image, self._reversal_under_way, self._too_soon,
                      self._confirming):
             held = rule(t_s, d, cand)
             if held is not None:
+                self._carry_from = None
                 return self._held(d, held), []
         d, fired = self._confirm_kind(t_s, pulse, d, cand)
         self.known_decision = d
+        self._carry_from = (float(t_s), _rate(d)) if cand in WAY_KINDS else None
+        self._carry_seen = float(t_s)
         return d, fired
+
+    def carry(self, t_s: float, d: Decision) -> Decision:
+        """A decision in doubt only about the direction (``turning``: a confident track
+        whose mirror image or an alias rate fits as well, in a room whose echoes turned
+        either way are alike) at the speed the known direction was last answered at
+        (within ``CHAIN_AGREE`` of it: the band is the answer's, not the last carried
+        decision's, so tracks cannot walk the rate away in steps) is published as that
+        direction. A fan turns the other way only through zero, where it spends at least
+        ``2 * visible / max_reversal_hz_s`` below the rate a new direction needs: a track
+        below that rate ends the carry, and so does a gap of half that time between
+        tracks at or above it (a window with no track says nothing either way; an answer
+        of rest ends it in :meth:`step`). A weak track, or one at another speed (an alias
+        line, a ramp away from the answered speed), keeps the carry but is not carried: a
+        weak one held on an old line while the fan slowed to zero beneath it."""
+        st = self.settings
+        if not self._in_doubt or self._carry_from is None or self.known not in WAY_KINDS \
+                or not st.max_reversal_hz_s > 0:
+            return d
+        t = float(t_s)
+        rate = abs(d.rate_hz) if d.rate_hz is not None and math.isfinite(d.rate_hz) \
+            else None
+        if rate is not None and rate < self._visible_hz \
+                or t - self._carry_seen > self._visible_hz / st.max_reversal_hz_s:
+            self._carry_from = None
+            return d
+        if rate is None:
+            return d
+        self._carry_seen = t
+        if not d.turning or abs(rate - self._carry_from[1]) > CHAIN_AGREE * self._carry_from[1]:
+            return d
+        way = Direction.SAME if self.known == Kind.SAME else Direction.REVERSED
+        known = self.known_decision
+        rotation = known.rotation if known is not None and known.direction == way else None
+        rel = d.relative_rate
+        if rel is not None and math.isfinite(rel):
+            rel = abs(rel) if way == Direction.SAME else -abs(rel)
+        return replace(d, direction=way, rotation=rotation, relative_rate=rel, turning=True,
+                       reason=f"{way} carried: the fan has turned at this speed without a "
+                              f"break since it was last answered {way}; {d.reason}")
 
     # -- the hold rules: each returns why it holds the decision, or None ------------------
 
