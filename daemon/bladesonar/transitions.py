@@ -256,10 +256,11 @@ class Transitions:
         direction. A fan turns the other way only through zero, where it spends at least
         ``2 * visible / max_reversal_hz_s`` below the rate a new direction needs: a track
         below that rate ends the carry, and so does a gap of half that time between
-        tracks at or above it (a window with no track says nothing either way; an answer
-        of rest ends it in :meth:`step`). A weak track, or one at another speed (an alias
-        line, a ramp away from the answered speed), keeps the carry but is not carried: a
-        weak one held on an old line while the fan slowed to zero beneath it."""
+        answers of the known direction or carried ones (an answer of rest ends it in
+        :meth:`step`). Between them, windows with no track, weak tracks and tracks at
+        another speed (an alias line, a ramp away from the answered speed) are not
+        carried and do not bridge the gap: a weak track held on the old line while the
+        fan slowed through zero beneath it, and alias lines come and go near zero."""
         st = self.settings
         if not self._in_doubt or self._carry_from is None or self.known not in WAY_KINDS \
                 or not st.max_reversal_hz_s > 0:
@@ -271,11 +272,10 @@ class Transitions:
                 or t - self._carry_seen > self._visible_hz / st.max_reversal_hz_s:
             self._carry_from = None
             return d
-        if rate is None:
+        if rate is None or not d.turning \
+                or abs(rate - self._carry_from[1]) > CHAIN_AGREE * self._carry_from[1]:
             return d
         self._carry_seen = t
-        if not d.turning or abs(rate - self._carry_from[1]) > CHAIN_AGREE * self._carry_from[1]:
-            return d
         way = Direction.SAME if self.known == Kind.SAME else Direction.REVERSED
         known = self.known_decision
         rotation = known.rotation if known is not None and known.direction == way else None
