@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from bladesonar import config
-from bladesonar.errors import EstimationError
+from bladesonar.errors import EstimationError, InputError
 from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer, capture_pulses
 from bladesonar.reference_build import Reference, build_reference, folds_multipath, unfolding_pri
@@ -68,7 +68,8 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2
     learned in the same room, at the same SNR and drift, from 20 s of the fan at the
     reference speed, as the daemon learns it. What the reference says is done as a user
     would do it, and it is learned again: when the fan's wall bounces fold past one PRI,
-    with the PRI the warning names; when echoes clip, at half the playback volume; when
+    with the PRI the warning names; when echoes clip (warned, or refused for too few
+    pulses left), at half the playback volume; when
     the speed is commensurate with the PRF (warned, or refused), at another fan speed,
     OTHER_SPEED times the last."""
     cfg0 = config.Config()
@@ -95,6 +96,14 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2
             if last or "different fan speed" not in str(e):
                 raise
             ref, rate_hz = None, rate_hz * OTHER_SPEED
+            continue
+        except InputError as e:
+            # refused for echoes that clip (too few pulses left): as the warning, half
+            # the playback volume
+            if last or "lower the playback volume" not in str(e):
+                raise
+            ref = None
+            cfg = config.replace(cfg, waveform={"amplitude": cfg.waveform.amplitude / 2})
             continue
         if last:
             break               # (the configuration the reference was learned with)

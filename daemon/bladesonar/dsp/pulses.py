@@ -838,13 +838,20 @@ def min_recording_s(pri: int, sample_rate: float, min_pulses: int) -> float:
 
 
 def too_few_pulses(usable: int, total: int, n_samples: int, *, pri: int, sample_rate: float,
-                   min_pulses: int, dropped: int = 0) -> InputError:
+                   min_pulses: int, dropped: int = 0, clipped: int = 0) -> InputError:
     """The refusal for a recording with fewer than ``min_pulses`` usable pulses: names
-    the counts, its length and how long to record (or the drop-outs, when there were)."""
+    the counts, its length and how long to record (or the drop-outs, when there were);
+    where most of the pulses left out clip inside the range window (``clipped`` of the
+    ``dropped``: a strong echo close to the device), the volume is the fix, and the
+    words are those of the reference's clipping warning."""
     secs = min_recording_s(pri, sample_rate, min_pulses)
     dur = n_samples / sample_rate if sample_rate > 0 else float("nan")
     fix = f"record at least {secs:.1f} s"
-    if dropped:
+    if clipped and 2 * clipped > dropped:
+        fix = (f"{clipped} pulses have samples at full scale inside the range window (an "
+               "echo close to the device clips): lower the playback volume or the capture "
+               "gain")
+    elif dropped:
         fix += f" or fix the drop-outs ({dropped} pulses dropped)"
     return InputError(f"only {usable} usable pulses (of {total}) in {dur:.2f} s; at least "
                       f"{min_pulses} are needed: {fix}")
