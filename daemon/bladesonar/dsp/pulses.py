@@ -746,8 +746,12 @@ class PulseAligner:
         core = raw[:, KERNEL_HALF - 1:KERNEL_HALF - 1 + L]
         finite = np.isfinite(raw).all(axis=1)
         status[(status == OK) & ~finite] = NAN
-        # a clipped coupling is handled (timed by the schedule): only clipping past it counts
-        past = core[:, max(self.coupling_zone - g.start, 0):]
+        # a clipped coupling is handled (timed by the schedule): only clipping past it
+        # counts; nor, with none clipped at the start, within the guard of the edge: a
+        # coupling acquired unclipped can clip later (drift moves its peak across the
+        # sample grid, and at some sub-sample positions the peak passes full scale), and
+        # no echo comes from so near
+        past = core[:, max(max(self.coupling_zone, COUPLING_GUARD) - g.start, 0):]
         clipped = (np.abs(np.where(np.isfinite(past), past, 0.0)) >= self.clip_level).any(axis=1)
         status[(status == OK) & clipped] = CLIPPED
         silent = ~(np.abs(np.where(np.isfinite(core), core, 0.0)) > 0.0).any(axis=1)
