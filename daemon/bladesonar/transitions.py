@@ -200,7 +200,7 @@ class Transitions:
                                              # line that beat its mirror image
         self._carry_from: tuple[float, float] | None = None   # (t, rate) the known
                                              # direction last answered at (carry)
-        self._carry_seen = -math.inf         # the last answer that saw the fan turn
+        self._carry_seen = -math.inf         # the last answered or carried window (s)
         self._in_doubt = False               # the last step's decision had no kind
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
