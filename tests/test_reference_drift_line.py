@@ -77,15 +77,15 @@ def test_a_fan_that_turns_on_the_drifts_cycle_by_chance_is_learned_without_a_wor
     assert not _drift_words(ref)
 
 
-@pytest.mark.xfail(strict=True, reason="open (issue 31): a fan on twice the drift's "
-                   "sub-sample cycle is learned at the cycle itself, half its rate, "
-                   "with no warning")
 def test_a_fan_on_twice_the_drifts_cycle_is_learned_at_its_rate():
     """2-D tuning scene 26 (a 4-blade fan at 0.938 Hz) with the drift chosen so that its
     blade rate is exactly twice the sub-sample cycle (42.5 ppm): every line of the fan
-    and of the drift's pattern is a harmonic of the cycle, and the estimate takes the
-    cycle as the fundamental, 0.469 Hz, in both bands (found by building the coincidence
-    in tuning scenes 2-48 at harmonic 1 and 1-30 at harmonic 2: the only one of 77 not
-    learned at its rate)."""
+    and of the drift's pattern is a harmonic of the cycle (found by building the
+    coincidence in tuning scenes 2-48 at harmonic 1 and 1-30 at harmonic 2: the only one
+    of 77 not learned at its rate). It was learned at the cycle itself, 0.469 Hz, while
+    its coupling, acquired unclipped, clipped at the sub-sample positions the drift
+    brings round once a cycle, and those pulses were left out as clipped; clipping at
+    the coupling's edge is the coupling's now (PulseAligner._cut), and with every pulse
+    kept it is learned at its rate."""
     ref, dr = _on_twice_the_cycle(26, ppm=42.5)
     assert ref.meta["rate_hz"] == pytest.approx(dr.ref_rate_hz, rel=0.01)
