@@ -12,7 +12,7 @@ import numpy as np
 
 from .analyzer import WarmStart, device_figures, new_aligner
 from .config import Config
-from .dsp.pulses import CLIPPED, RecordingCheck, count_dropped, too_few_pulses
+from .dsp.pulses import RecordingCheck, count_clipped, count_dropped, too_few_pulses
 from .dsp.stats import median
 from .errors import InputError
 from .reference_build import Reference, check_compatible
@@ -119,7 +119,7 @@ def analyze(x: np.ndarray | Iterable[np.ndarray], cfg: Config, ref: Reference,
     if an is None or n_valid < a.min_pulses:
         raise too_few_pulses(n_valid, n_pulses, chk.n, pri=pri,
                              sample_rate=cfg.audio.sample_rate, min_pulses=a.min_pulses,
-                             dropped=dropped, clipped=int(np.count_nonzero(all_status == CLIPPED)))
+                             dropped=dropped, clipped=count_clipped(all_status))
     # the last decision made (as the daemon's last estimate: at most decide_every - 1
     # pulses before the end)
     d = an.decided if an.decided is not None else an.decision()

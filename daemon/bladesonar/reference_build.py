@@ -25,12 +25,12 @@ from .dsp.gate import Gate, find_target_range, make_gate, max_gate_stop
 from .dsp.period import PeriodEstimate, drift_harmonic, estimate_period, sub_sample_cycle
 from .dsp.pulses import (
     BURST,
-    CLIPPED,
     OK,
     WARMUP,
     AlignedPulses,
     PulseAligner,
     check_recording,
+    count_clipped,
     count_dropped,
     too_few_pulses,
 )
@@ -319,7 +319,7 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
         raise too_few_pulses(int(v.sum()), len(full), len(x), pri=pri, sample_rate=fs,
                              min_pulses=a.min_pulses,
                              dropped=count_dropped(full.status, ended=True),
-                             clipped=int(np.count_nonzero(full.status == CLIPPED)))
+                             clipped=count_clipped(full.status))
     device, warm = _device_figures(full, aligner, prf, fs)
     warnings.extend(device.pop("warnings"))
     v = full.valid
@@ -327,7 +327,7 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
         raise too_few_pulses(int(v.sum()), len(full), len(x), pri=pri, sample_rate=fs,
                              min_pulses=a.min_pulses,
                              dropped=count_dropped(full.status, ended=True),
-                             clipped=int(np.count_nonzero(full.status == CLIPPED)))
+                             clipped=count_clipped(full.status))
     gate, target = _gate_for_reference(cfg, full, prf)
     warnings.extend(_fold_warning(cfg, gate, target))
     pulses = full.pulses[:, gate.start:gate.stop]

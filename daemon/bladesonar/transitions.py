@@ -198,8 +198,8 @@ class Transitions:
         self._known_seen: tuple[float, float] | None = None   # (t, rate), known direction
         self._known_checked = False          # an answer of the known direction was on a
                                              # line that beat its mirror image
-        self._carry_from: tuple[float, float] | None = None   # (t, rate) the known
-                                             # direction last answered at (carry)
+        self._carry_from: float | None = None   # the rate (Hz) the known direction
+                                             # was last answered at (carry)
         self._carry_seen = -math.inf         # the last answered or carried window (s)
         self._in_doubt = False               # the last step's decision had no kind
         self.events: list[Event] = []        # all events so far (the caller may clear)
@@ -243,7 +243,7 @@ class Transitions:
                 return self._held(d, held), []
         d, fired = self._confirm_kind(t_s, pulse, d, cand)
         self.known_decision = d
-        self._carry_from = (float(t_s), _rate(d)) if cand in WAY_KINDS else None
+        self._carry_from = _rate(d) if cand in WAY_KINDS else None
         self._carry_seen = float(t_s)
         return d, fired
 
@@ -273,7 +273,7 @@ class Transitions:
             self._carry_from = None
             return d
         if rate is None or not d.turning \
-                or abs(rate - self._carry_from[1]) > CHAIN_AGREE * self._carry_from[1]:
+                or abs(rate - self._carry_from) > CHAIN_AGREE * self._carry_from:
             return d
         self._carry_seen = t
         way = Direction.SAME if self.known == Kind.SAME else Direction.REVERSED

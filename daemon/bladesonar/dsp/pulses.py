@@ -812,6 +812,12 @@ def count_dropped(status: np.ndarray, *, ended: bool = False) -> int:
     return int(np.count_nonzero((s != OK) & (s != WARMUP) & (s != BURST)))
 
 
+def count_clipped(status: np.ndarray) -> int:
+    """Pulses left out because the echo window clipped (told apart from drop-outs so a
+    refusal can name the volume rather than the audio path)."""
+    return int(np.count_nonzero(np.asarray(status) == CLIPPED))
+
+
 def align(x: np.ndarray, pri: int, gate: Gate, **kwargs: Any) -> AlignedPulses:
     """One-shot alignment of a whole recording (same result as feeding it in chunks).
 
