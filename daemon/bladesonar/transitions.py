@@ -253,27 +253,32 @@ class Transitions:
         either way are alike) at the speed the known direction was last answered at
         (within ``CHAIN_AGREE`` of it: the band is the answer's, not the last carried
         decision's, so tracks cannot walk the rate away in steps) is published as that
-        direction. A fan turns the other way only through zero, where it spends at least
-        ``2 * visible / max_reversal_hz_s`` below the rate a new direction needs: a track
-        below that rate ends the carry, and so does a gap of half that time between
-        answers of the known direction or carried ones (an answer of rest ends it in
-        :meth:`step`). Between them, windows with no track, weak tracks and tracks at
-        another speed (an alias line, a ramp away from the answered speed) are not
-        carried and do not bridge the gap: a weak track held on the old line while the
-        fan slowed through zero beneath it, and alias lines come and go near zero."""
+        direction. A fan turns the other way only through zero, braked and driven at
+        ``max_reversal_hz_s`` at most: from the answered speed down and up again to the
+        window's takes ``(answered + rate) / max_reversal_hz_s``, and the carry ends when
+        ``SUDDEN_SHARE`` of that time has passed since the last answered or carried
+        window (the share under which :meth:`step` holds a reversal as sudden, so the
+        two rules agree on what a fan can do). What the fan shows on the way down ends
+        it too: a confident track under the band (a fan slowing, or the rate a new
+        direction needs), or an answer of rest (in :meth:`step`). Windows with no track,
+        weak tracks and tracks above the band (an alias line, a ramp up) are not carried
+        and do not end it: a weak track may hold a stale line while the fan slows beneath
+        it, which the time bound covers, and alias lines come and go."""
         st = self.settings
         if not self._in_doubt or self._carry_from is None or self.known not in WAY_KINDS \
                 or not st.max_reversal_hz_s > 0:
             return d
-        t = float(t_s)
+        t, answered = float(t_s), self._carry_from
         rate = abs(d.rate_hz) if d.rate_hz is not None and math.isfinite(d.rate_hz) \
             else None
-        if rate is not None and rate < self._visible_hz \
-                or t - self._carry_seen > self._visible_hz / st.max_reversal_hz_s:
+        if rate is not None and (rate < self._visible_hz or d.turning
+                                 and rate < (1.0 - CHAIN_AGREE) * answered):
             self._carry_from = None
             return d
-        if rate is None or not d.turning \
-                or abs(rate - self._carry_from) > CHAIN_AGREE * self._carry_from:
+        if rate is None or not d.turning or rate > (1.0 + CHAIN_AGREE) * answered:
+            return d
+        if t - self._carry_seen > SUDDEN_SHARE * (answered + rate) / st.max_reversal_hz_s:
+            self._carry_from = None
             return d
         self._carry_seen = t
         way = Direction.SAME if self.known == Kind.SAME else Direction.REVERSED
