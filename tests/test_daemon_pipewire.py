@@ -149,13 +149,15 @@ def open_delay(off: float, what: str) -> None:
                      "(open: docs/audio.md)")
 
 
-def record_reference(cfg: Path, env: dict[str, str], rel: float = 0.005) -> None:
+def record_reference(cfg: Path, env: dict[str, str], rel: float = 0.005) -> int:
+    """``reference --live`` through ``env``'s audio path; the pulses it used."""
     r = subprocess.run(bladesonar_cmd("reference", "--live", "--seconds", str(REF_S),
                                       "--direction", "ccw", "--config", str(cfg)),
                        env=env, capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
     assert summary["rate_hz"] == pytest.approx(RATE, rel=rel)
+    return int(summary["pulses"])
 
 
 def daemon_config(d: Path, **audio: Any) -> Path:
@@ -212,7 +214,7 @@ def alsa_baseline_at(fs: int, tmp_path_factory: pytest.TempPathFactory) -> dict[
                             capture_device="bladesonar_cap")
         with RoomProcess(cfg, d / "room0", f"ccw:{RATE}:60", realtime=False,
                          noise=NOISE) as room:
-            record_reference(cfg, room.env)
+            pulses = record_reference(cfg, room.env)
         truth = d / "truth.jsonl"
         with RoomProcess(cfg, d / "room1", SCHEDULE, realtime=True, noise=NOISE,
                          truth=truth) as room:
@@ -222,7 +224,7 @@ def alsa_baseline_at(fs: int, tmp_path_factory: pytest.TempPathFactory) -> dict[
         assert run.last_stats()["audio"]["sound_server"]["path"] == "alsa"
         assert run.topic("status")[-1]["audio"]["path"] == "alsa"
         _BASELINES[fs] = {"delay": reversal_delay(run, sessions(truth)[0]),
-                          "stats": run.last_stats()}
+                          "stats": run.last_stats(), "reference_pulses": pulses}
     return _BASELINES[fs]
 
 
@@ -239,10 +241,24 @@ def alsa44(tmp_path_factory) -> dict[str, Any]:
 # -- PipeWire ------------------------------------------------------------------------------
 
 
-class Graph:
-    """A headless server at ``fs``, its room, and a reference recorded through it."""
+#: Tries at a reference through the graph that holds the ALSA loopback's pulses
+REFERENCE_TRIES = 3
 
-    def __init__(self, d: Path, fs: int) -> None:
+
+class Graph:
+    """A headless server at ``fs``, its room, and a reference recorded through it.
+
+    The comparison with the ALSA loopback holds only on the same reference: both record
+    the same pulses from the first one heard, unless the graph's latency steps during
+    the recording (docs/audio.md, "Latency jumps": mostly in the first 1-2 s on a busy
+    machine), which costs the aligner 6-8 pulses. A reference without them is a fine
+    reference (its rate is checked all the same) but another one, and on this ramp the
+    reversal's moment moves with any change of reference or noise (1.37-2.33 s over
+    noise draws): seen 0.57 s later, twice in full suites, on a reference of 332 pulses
+    instead of 340. So the reference is recorded again, up to ``REFERENCE_TRIES`` times,
+    until it holds the loopback's ``pulses``."""
+
+    def __init__(self, d: Path, fs: int, pulses: int) -> None:
         self.server = PipeWireServer(d / "pw", rate=fs).start()
         self.room: PwRoomProcess | None = None
         self.cfg = daemon_config(d, backend="pipewire", sample_rate=fs,
@@ -255,7 +271,12 @@ class Graph:
                                       truth=self.truth)
             # a latency jump of one quantum in the first second (docs/audio.md) was
             # seen to cost the reference up to 0.5 % of its rate on a busy host
-            record_reference(self.cfg, self.server.env, rel=0.01)
+            for i in range(REFERENCE_TRIES):
+                got = record_reference(self.cfg, self.server.env, rel=0.01)
+                print(f"reference through the graph: {got} pulses, the ALSA loopback's "
+                      f"{pulses} (try {i + 1})")
+                if got == pulses:
+                    break
         except BaseException:
             self.close()
             raise
@@ -292,7 +313,8 @@ class Graph:
 def graph48(tmp_path_factory):
     require_pipewire()
     require_alsa()
-    g = Graph(tmp_path_factory.mktemp("pw48"), 48000)
+    g = Graph(tmp_path_factory.mktemp("pw48"), 48000,
+              alsa_baseline_at(48000, tmp_path_factory)["reference_pulses"])
     yield g
     g.close()
 
@@ -475,7 +497,8 @@ def test_nodes_suspended_under_the_daemon(graph48, alsa48):
 def graph44(tmp_path_factory):
     require_pipewire()
     require_alsa()
-    g = Graph(tmp_path_factory.mktemp("pw44"), 44100)
+    g = Graph(tmp_path_factory.mktemp("pw44"), 44100,
+              alsa_baseline_at(44100, tmp_path_factory)["reference_pulses"])
     yield g
     g.close()
 
