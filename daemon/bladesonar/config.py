@@ -85,7 +85,7 @@ class SceneSettings:
 class AnalysisSettings:
     """Reference building and matching (owned by the pipeline: dsp/ and the analysis modules)."""
 
-    phase_bins: int = opt(0, "angular bins of the reference table; 0: two per reference "
+    phase_bins: int = opt(0, "angular bins of the reference table; 0: four per reference "
                           "pulse per blade period (folding many periods fills the angles "
                           "between pulses), 16 to 256", lo=0, hi=4096)
     min_periods: float = opt(3.0, "blade periods a reference must hold to be folded",

@@ -132,21 +132,29 @@ def _moving_average(env: np.ndarray, smooth: int) -> np.ndarray:
     return out
 
 
+#: Table bins per reference pulse step (:func:`auto_bins`)
+BINS_PER_STEP = 4.0
+
+
 def fold_phases(k: np.ndarray, cycles_per_pulse: float, k0: float = 0.0) -> np.ndarray:
     """Blade phase of pulse numbers ``k`` under a constant rate, in [0, 1) cycles."""
     return np.mod(cycles_per_pulse * (np.asarray(k, dtype=np.float64) - k0), 1.0)
 
 
 def auto_bins(cycles_per_pulse: float, requested: int = 0) -> int:
-    """Phase bins of the table: ``requested``, or two per reference pulse step (16..256).
+    """Phase bins of the table: ``requested``, or four per reference pulse step (16..256).
 
     Folding many periods whose length is not a whole number of pulses fills in the angles
-    between pulses, so the table can be finer than one bin per pulse.
+    between pulses, so the table can be finer than one bin per pulse. It must be: the
+    echoes of a far or many-bladed fan change so much within a pulse step that
+    neighbouring bins at two per step correlate 0.2-0.5 in random scenes, and the
+    parabolic sub-bin step between such bins is poor. Four per step halve the phase
+    error of a table that coarse and leave a smooth one as it was (docs/analysis.md).
     """
     if requested > 0:
         return int(requested)
     r = max(float(cycles_per_pulse), 1e-9)
-    return int(min(256, max(16, round(2.0 / r))))
+    return int(min(256, max(16, round(BINS_PER_STEP / r))))
 
 
 def build_table(features: np.ndarray, phases: np.ndarray, bins: int) -> tuple[np.ndarray,
