@@ -115,7 +115,9 @@ def replay(args: argparse.Namespace) -> None:
               f"trk {trk} fol {fol} w {tr.follower_weight:.2f} bound "
               f"{_hz(an, tr.rate_bound):.2f} | known {tz.known} zero_by "
               f"{'-' if tz._zero_by is None else f'{tz._zero_by:.1f}'} | coast "
-              f"{tr.coasted} out {tr.outliers} upd {tr.updates}{note}"
+              f"{tr.coasted} out {tr.outliers} upd {tr.updates} | still "
+              f"{an.still.statistic()[0]:.3f}/{an._decide_settings.still_threshold:.3f}"
+              f"{' frozen' if an.static.frozen else ''}{note}"
               + (f"\n{'':12s}{s.reason[:150]}" if args.reasons else ""))
 
 

@@ -347,7 +347,8 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
             f"so the table holds only those (interpolated between) and the rate itself may "
             f"be an alias (another m/{q}; the record cannot tell the order of the angles); "
             f"record the reference at another fan speed, a few percent faster or slower")
-    bins = fp.auto_bins(r, a.phase_bins)
+    bins = fp.auto_bins(r, a.phase_bins,
+                        angles=folded.denominator if folded is not None else None)
     phases = fp.fold_phases(k, r)
     table, weight = fp.build_table(feats, phases, bins)
     quality = fp.explained_fraction(feats, table, phases)

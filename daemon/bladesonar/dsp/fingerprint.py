@@ -141,8 +141,11 @@ def fold_phases(k: np.ndarray, cycles_per_pulse: float, k0: float = 0.0) -> np.n
     return np.mod(cycles_per_pulse * (np.asarray(k, dtype=np.float64) - k0), 1.0)
 
 
-def auto_bins(cycles_per_pulse: float, requested: int = 0) -> int:
-    """Phase bins of the table: ``requested``, or four per reference pulse step (16..256).
+def auto_bins(cycles_per_pulse: float, requested: int = 0, angles: int | None = None
+              ) -> int:
+    """Phase bins of the table: ``requested``, or four per reference pulse step (16..256),
+    and no more than two per blade angle the reference saw (``angles``: a reference near
+    p/q blade period per pulse sees only q; finer bins would be blends of those).
 
     Folding many periods whose length is not a whole number of pulses fills in the angles
     between pulses, so the table can be finer than one bin per pulse. It must be: the
@@ -154,7 +157,10 @@ def auto_bins(cycles_per_pulse: float, requested: int = 0) -> int:
     if requested > 0:
         return int(requested)
     r = max(float(cycles_per_pulse), 1e-9)
-    return int(min(256, max(16, round(BINS_PER_STEP / r))))
+    bins = round(BINS_PER_STEP / r)
+    if angles is not None and angles > 0:
+        bins = min(bins, 2 * int(angles))
+    return int(min(256, max(16, bins)))
 
 
 def build_table(features: np.ndarray, phases: np.ndarray, bins: int) -> tuple[np.ndarray,
