@@ -389,8 +389,13 @@ class RestFloor:
         """The turning readings' ``MOVING_QUANTILE`` (None: too few yet)."""
         if len(self._moving) < self.least:
             return None
-        return float(np.quantile(np.fromiter(self._moving, np.float64, len(self._moving)),
-                                 MOVING_QUANTILE))
+        # np.quantile's linear rule, by hand: np.quantile imports numpy.ma, which the
+        # live analysis leaves out (tests/test_daemon_imports.py)
+        a = np.sort(np.fromiter(self._moving, np.float64, len(self._moving)))
+        pos = MOVING_QUANTILE * (len(a) - 1)
+        i = int(math.floor(pos))
+        j = min(i + 1, len(a) - 1)
+        return float(a[i] + (a[j] - a[i]) * (pos - i))
 
     def note(self, still: float, at_rest: bool, moving: bool = False) -> float:
         """Add one decision's short-meter reading (``at_rest``: the tracker sees no
