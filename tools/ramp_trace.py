@@ -6,7 +6,7 @@ truth beside the estimator's insides. A measuring tool, not a test.
   .venv/bin/python tools/ramp_trace.py --report DIR      (the breakdown of saved traces)
 
 Tuning seeds only (1-200, and the spent held-out ranges 600001-600022, 700001-700021,
-800001-800020, 900001-900020, 1000001-1000020):
+800001-800020, 900001-900020, 1000001-1000020, 1100001-1100020):
 seeds from 1200001 on are the next held-out range, and the tool refuses them.
 
 A row (``.npz`` per seed, arrays named as below): ``t`` stream time of the state (s),
