@@ -83,9 +83,13 @@ def test_tiny_sweep_scores_against_the_truth(report):
     # 0.25 s holds 8 pulses: below the 16 the pipeline accepts, so refused (and unknown)
     short = _row(rep, family="window_snr", snr_db=20.0, window_s=0.25)
     assert short["trials"] == 8 and short["refused"] == 1.0 and short["correct"] == 0.0
-    # beyond the aliasing limit the truth is flagged and no answer is right
+    # beyond the aliasing limit the truth is flagged and no answer has the rate: the
+    # pulses cannot see it, so an answer's direction word matches the truth by chance
+    # (a coin flip: 50 % at this point in docs/report.md's full sweep; here one of the
+    # two seeds answered cw at -0.68 for a true -9.5 once the tables were finer)
     ali = _row(rep, family="rate_ratio", window_s=5.0)
-    assert ali["aliased"] and ali["correct"] == 0.0
+    assert ali["aliased"]
+    assert ali["rate_err_median"] is None or ali["rate_err_median"] > 0.5
     assert any("Aliasing limit" in n for n in rep["limits"])
     rv = rep["reversals"][0]
     assert rv["detected"] == 1.0 and 0 < rv["detect_s_median"] < 5.0
