@@ -404,11 +404,14 @@ class RestFloor:
             return self.threshold
         if moving:
             self._moving.append(float(still))
+        if not at_rest:
+            return self.threshold
+        # (the turning readings' quantile is read only for a reading at rest)
         low = self.turning_low() if self.wide_shift > self.max_shift else None
         admit = self.base + self.max_shift
         if low is not None:
             admit = max(admit, min(low / SEPARATION, self.base + self.wide_shift))
-        if at_rest and still < admit:
+        if still < admit:
             self._seen.append(float(still))
             if len(self._seen) >= self.least:
                 med = float(median(np.fromiter(self._seen, np.float64, len(self._seen))))
