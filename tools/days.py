@@ -60,6 +60,11 @@ def day(hours: float, seed: int, block_pulses: int = 1,
     return cfg, sch, sim, LiveAnalyzer(cfg, ref, block_pulses=block_pulses), snr
 
 
+def _half_volume(cfg: config.Config) -> config.Config:
+    """What the clipping warning and refusal ask of a user: half the playback volume."""
+    return config.replace(cfg, waveform={"amplitude": cfg.waveform.amplitude / 2})
+
+
 def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2
                ) -> tuple[config.Config, Schedule, Simulator, LiveAnalyzer,
                           random_scene.SceneDraw | random_scene.DayDraw3D]:
@@ -103,7 +108,7 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2
             if last or "lower the playback volume" not in str(e):
                 raise
             ref = None
-            cfg = config.replace(cfg, waveform={"amplitude": cfg.waveform.amplitude / 2})
+            cfg = _half_volume(cfg)
             continue
         if last:
             break               # (the configuration the reference was learned with)
@@ -111,7 +116,7 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2
             cfg = config.replace(cfg, waveform={
                 "pri_samples": unfolding_pri(cfg, ref.meta["target_range_m"])})
         elif any("lower the playback volume" in w for w in ref.meta["warnings"]):
-            cfg = config.replace(cfg, waveform={"amplitude": cfg.waveform.amplitude / 2})
+            cfg = _half_volume(cfg)
         elif any("another fan speed" in w for w in ref.meta["warnings"]):
             rate_hz *= OTHER_SPEED
         else:
