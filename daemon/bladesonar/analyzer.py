@@ -41,7 +41,6 @@ from .tuning import (
     REST_KEEP,
     REST_LEAST,
     REST_SHIFT_MAX,
-    REST_SHIFT_WIDE,
     SCALE_EVERY,
     SCALE_LIMIT,
     SCALE_MIN_CORR,
@@ -463,8 +462,7 @@ class PulseAnalyzer:
         # and above what this device reads at rest, where that is more than noise
         self.rest_floor = RestFloor(self._decide_settings.still_threshold,
                                     noise_threshold(*shape, quantile=0.5),
-                                    REST_SHIFT_MAX, REST_KEEP, REST_LEAST,
-                                    wide_shift=REST_SHIFT_WIDE)
+                                    REST_SHIFT_MAX, REST_KEEP, REST_LEAST)
         self._table_norms = (self.ref.table ** 2).sum(axis=1)
         self._table_floor = fp.distance_floor(self.ref.table)
         prf = self.cfg.prf_hz
@@ -921,10 +919,7 @@ class PulseAnalyzer:
         ref_cpp = self.ref.cycles_per_pulse
         seen_hz = abs(rate) / ref_cpp * float(self.ref.meta["rate_hz"]) \
             if locked and math.isfinite(rate) and ref_cpp > 0 else 0.0
-        floor_hz = self.cfg.tracking.rate_floor_hz
-        clear = seen_hz >= 2.0 * floor_hz and abs(rate) >= 4.0 * sd \
-            and not self.static.frozen
-        thr = self.rest_floor.note(still, seen_hz < floor_hz, moving=clear)
+        thr = self.rest_floor.note(still, seen_hz < self.cfg.tracking.rate_floor_hz)
         if thr != self._decide_settings.still_threshold:
             self._decide_settings = replace(self._decide_settings, still_threshold=thr)
         # the short meter sees no change beyond noise: the fan may be coming to rest, and

@@ -37,9 +37,6 @@ NOISE_MARGIN = 0.03
 #: 1.43 or more at the 1st percentile in the reverberant room that needed it (1.30 then),
 #: 1.67 at the 5th in the tuned room.
 REST_SHIFT_MAX = 0.15
-#: How far it may rise where this device's turning readings lie far above its resting
-#: ones (decide.RestFloor, SEPARATION): the geometric mean of the two, at most this.
-REST_SHIFT_WIDE = 1.0
 REST_KEEP = 256
 REST_LEAST = 30
 

@@ -365,71 +365,26 @@ class RestFloor:
     kept, and the threshold rises by their median's excess over noise's median, at most
     ``max_shift`` (a turning fan reads well above: 1.43 at the 1st percentile in that
     scene, 1.67 at the 5th in the tuned room).
-
-    That cap is what the tuned rooms allow, where the two lie close. Where this device
-    has read a turning fan (``moving``: a clear track) far above its rest, the two are
-    told apart by their own readings: once the turning readings' ``MOVING_QUANTILE`` is
-    ``SEPARATION`` times the rest median or more, readings up to that quantile over
-    ``SEPARATION`` count as rest, and the threshold may rise to the geometric mean of
-    the two (at most ``wide_shift`` above the base). In random scene 1000011 (RT60
-    0.62 s, 142 ppm) a rest read 1.45-1.50 for 40 s against 1.30 and was never called,
-    while its fan read 3 and more turning.
     """
 
     def __init__(self, base: float, noise_median: float, max_shift: float,
-                 keep: int, least: int, wide_shift: float = 0.0) -> None:
+                 keep: int, least: int) -> None:
         self.base, self.noise_median = float(base), float(noise_median)
-        self.max_shift, self.wide_shift = float(max_shift), float(wide_shift)
+        self.max_shift = float(max_shift)
         self.least = int(least)
         self._seen: deque[float] = deque(maxlen=int(keep))
-        self._moving: deque[float] = deque(maxlen=int(keep))
         self.threshold = self.base
 
-    def turning_low(self) -> float | None:
-        """The turning readings' ``MOVING_QUANTILE`` (None: too few yet)."""
-        if len(self._moving) < self.least:
-            return None
-        # np.quantile's linear rule, by hand: np.quantile imports numpy.ma, which the
-        # live analysis leaves out (tests/test_daemon_imports.py)
-        a = np.sort(np.fromiter(self._moving, np.float64, len(self._moving)))
-        pos = MOVING_QUANTILE * (len(a) - 1)
-        i = int(math.floor(pos))
-        j = min(i + 1, len(a) - 1)
-        return float(a[i] + (a[j] - a[i]) * (pos - i))
-
-    def note(self, still: float, at_rest: bool, moving: bool = False) -> float:
+    def note(self, still: float, at_rest: bool) -> float:
         """Add one decision's short-meter reading (``at_rest``: the tracker sees no
-        motion; ``moving``: it sees a clear turn); return the threshold to use now."""
-        if not math.isfinite(still):
-            return self.threshold
-        if moving:
-            self._moving.append(float(still))
-        if not at_rest:
-            return self.threshold
-        # (the turning readings' quantile is read only for a reading at rest)
-        low = self.turning_low() if self.wide_shift > self.max_shift else None
-        admit = self.base + self.max_shift
-        if low is not None:
-            admit = max(admit, min(low / SEPARATION, self.base + self.wide_shift))
-        if still < admit:
+        motion); return the threshold to use now."""
+        if at_rest and math.isfinite(still) and still < self.base + self.max_shift:
             self._seen.append(float(still))
             if len(self._seen) >= self.least:
                 med = float(median(np.fromiter(self._seen, np.float64, len(self._seen))))
                 shift = min(max(med - self.noise_median, 0.0), self.max_shift)
-                threshold = self.base + shift
-                if low is not None and low >= SEPARATION * med:
-                    threshold = max(threshold, min(math.sqrt(med * low),
-                                                   self.base + self.wide_shift))
-                self.threshold = threshold
+                self.threshold = self.base + shift
         return self.threshold
-
-
-#: The turning readings' low end (:class:`RestFloor`): their 5th percentile.
-MOVING_QUANTILE = 0.05
-#: How far apart (a ratio) a device's turning and resting readings must lie for the rest
-#: threshold to be set between them rather than near noise's (:class:`RestFloor`): the
-#: tuned room's 1.67 / 1.05 = 1.6 is not.
-SEPARATION = 2.0
 
 
 def motion_statistic(pulses: np.ndarray, max_lag: int = 16) -> tuple[float, float]:
