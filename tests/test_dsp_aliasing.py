@@ -159,10 +159,11 @@ def test_the_mirror_of_a_path_fits_an_asymmetric_pattern_worse(accel):
         f = table_lookup(table, p)
         f = f + 0.05 * np.random.default_rng(seed).standard_normal(f.shape)
         d = aliasing.distances(f, fine)
-        z, sweep, _ = aliasing.mirror_evidence(d, p % 1.0, fine)
+        ev = aliasing.mirror_evidence(d, p % 1.0, fine)
+        z, sweep = ev.z, ev.sweep
         assert z > aliasing.MIRROR_Z and sweep == pytest.approx(
             abs(p[-1] - p[0]), rel=1e-6), (seed, z)
-        z_m = aliasing.mirror_evidence(d, (0.7 - p) % 1.0, fine).t
+        z_m = aliasing.mirror_evidence(d, (0.7 - p) % 1.0, fine).z
         assert z_m < -aliasing.MIRROR_Z, (seed, z_m)
 
 
@@ -177,7 +178,7 @@ def test_a_symmetric_pattern_leaves_the_direction_to_chance():
     for seed in range(40):
         f = table_lookup(table, p)
         f = f + 0.05 * np.random.default_rng(seed).standard_normal(f.shape)
-        z_list.append(aliasing.mirror_evidence(aliasing.distances(f, fine), p % 1.0, fine).t)
+        z_list.append(aliasing.mirror_evidence(aliasing.distances(f, fine), p % 1.0, fine).z)
     zs = np.array(z_list)
     assert np.mean(np.abs(zs) >= aliasing.MIRROR_Z) <= 0.1, zs
     assert np.mean(np.abs(zs) < aliasing.MIRROR_DOUBT_Z) >= 0.8, zs
@@ -265,3 +266,24 @@ def test_a_steady_runs_windows_add_up_where_one_window_is_too_weak():
         seen = []
         _watch_on(table, 0.03, mirror=True, seed=seed, n=n, seen=seen)
         assert not any(ok for moves, ok in seen if moves == 0), seed
+
+
+def test_the_mirror_evidence_of_six_batch_means_is_read_on_the_normal_scale():
+    """A 5 s window holds about six blade-period batch means, and their t has five degrees
+    of freedom: t 3 is one window in 70 on noise alone (Student's t table: the 0.99
+    quantile at 5 degrees is 3.365), which is not MIRROR_Z's significance. Read as the
+    normal z of the same tail it is under MIRROR_Z; with many batches a t is a z."""
+    ev = aliasing.MirrorEvidence(3.0, 5.0, 0.0, 5)
+    assert ev.z < aliasing.MIRROR_Z
+    assert aliasing.MirrorEvidence(3.364930, 5.0, 0.0, 5).z == pytest.approx(2.326348, abs=1e-5)
+    assert aliasing.MirrorEvidence(-3.364930, 5.0, 0.0, 5).z == pytest.approx(-2.326348,
+                                                                             abs=1e-5)
+    assert aliasing.MirrorEvidence(3.0, 5.0, 0.0, 10 ** 6).z == pytest.approx(3.0, abs=1e-3)
+    # a window at 0.03 blade cycles per pulse (5.1 cycles in 170 pulses): six batches
+    from bladesonar.dsp.fingerprint import table_lookup
+    table = _table(visible=None)
+    fine = aliasing.fine_table(table)
+    p = _path(0.03, 0.0)
+    f = table_lookup(table, p) + 0.05 * np.random.default_rng(0).standard_normal(
+        (len(p), table.shape[1]))
+    assert aliasing.mirror_evidence(aliasing.distances(f, fine), p % 1.0, fine).dof == 5

@@ -403,8 +403,9 @@ def direction_contrast(feats: np.ndarray, phases: np.ndarray, bins: int, window:
         fine = aliasing.fine_table(table)
         f, p = feats[test], phases[test]
         for s0 in range(0, len(f) - aliasing.MIRROR_MIN_PULSES + 1, window):
-            z, sweep, _ = aliasing.mirror_evidence(
+            ev = aliasing.mirror_evidence(
                 aliasing.distances(f[s0:s0 + window], fine), p[s0:s0 + window], fine)
+            z, sweep = ev.t, ev.sweep
             if sweep >= aliasing.MIRROR_MIN_SWEEP and math.isfinite(z):
                 zs.append(z)
     if not zs:

@@ -34,6 +34,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from .fingerprint import table_lookup
+from .stats import t_as_z
 from .tracking import Tracker, TrackId, wrap
 
 #: Largest denominator q checked (simulated paper-room probes locked on aliases up to
@@ -45,10 +46,13 @@ MARGIN = 0.1
 RAMP_PULSES = 34
 #: Phase steps of the line fit per table bin.
 FIT_STEPS_PER_BIN = 4
-#: Evidence (a t statistic, :func:`mirror_evidence`) that a track's line fits the table
-#: better than its mirror line, below which its direction is in doubt: a significance, not
-#: a room's figure (random tuning scenes whose direction held gave 3.0-22 at the 5th
-#: percentile of 5 s windows, those that flipped -2.9 to 1.7).
+#: Evidence (:attr:`MirrorEvidence.z`: the t statistic of :func:`mirror_evidence` read as
+#: the normal z of the same tail) that a track's line fits the table better than its
+#: mirror line, below which its direction is in doubt: a significance, not a room's
+#: figure. A window of 5 s holds about six batch means (a blade period each), and a t
+#: from six is heavy-tailed: t 3 is z 2.17 (one window in 70 on noise, not one in 740),
+#: and t 5.6 is z 3. (As t, random tuning scenes whose direction held gave 3.0-22 at the
+#: 5th percentile of 5 s windows, those that flipped -2.9 to 1.7.)
 MIRROR_Z = 3.0
 #: Evidence under which a whole window of steady turning leaves the direction in doubt
 #: (between the two, neither: a hysteresis, so that a strong room's windows through a
@@ -239,6 +243,13 @@ class MirrorEvidence(NamedTuple):
     t: float            # how much better the path fits than its mirror (a t statistic)
     sweep: float        # blade cycles the path moved over
     offset: float       # the mirror image's best offset c (cycles): it is ``c - p_k``
+    dof: int = 0        # the t's degrees of freedom (batch means less one; 0: no t)
+
+    @property
+    def z(self) -> float:
+        """``t`` as the normal z of the same tail (:func:`stats.t_as_z`): the scale
+        ``MIRROR_Z`` and ``MIRROR_DOUBT_Z`` are set on."""
+        return t_as_z(self.t, self.dof) if self.dof > 0 else self.t
 
 
 def mirror_evidence(dist: np.ndarray, path: np.ndarray, fine: tuple[np.ndarray, np.ndarray]
@@ -279,8 +290,8 @@ def mirror_evidence(dist: np.ndarray, path: np.ndarray, fine: tuple[np.ndarray, 
     mean, sd = float(bm.mean()), float(bm.std(ddof=1))
     if not sd > 0:
         return MirrorEvidence(math.copysign(math.inf, mean) if mean != 0 else 0.0, sweep,
-                              offset)
-    return MirrorEvidence(mean / (sd / math.sqrt(nb)), sweep, offset)
+                              offset, nb - 1)
+    return MirrorEvidence(mean / (sd / math.sqrt(nb)), sweep, offset, nb - 1)
 
 
 @dataclass(frozen=True)
@@ -541,7 +552,8 @@ class AliasWatch:
                 signed = wrap(np.diff(path))
                 back = min(float(signed[signed > 0].sum()),
                            float(-signed[signed < 0].sum()))
-        z, sweep, mirror_offset = mirror_evidence(self._dist[idx], path, self.fine)
+        ev = mirror_evidence(self._dist[idx], path, self.fine)
+        z, sweep, mirror_offset = ev.z, ev.sweep, ev.offset
         if sweep < MIRROR_MIN_SWEEP or back > MIRROR_TURN_SHARE * sweep:
             return self._no_verdict()   # a path and its mirror are nearly the same
         self._mirror_at = self.count
@@ -581,11 +593,11 @@ class AliasWatch:
             r0 = self.ref_cycles_per_pulse
             self.mirror_note = (f"direction in doubt: the reversed path (relative rate "
                                 f"{-w / r0:+.3f}) fits the reference table better than the "
-                                f"track's {w / r0:+.3f} (t {z:.1f}), to be confirmed")
+                                f"track's {w / r0:+.3f} (z {z:.1f}), to be confirmed")
         elif doubt:
             self._mirror_ok = None
             self.mirror_note = (f"direction in doubt: the fan's echoes turned either way fit "
-                                f"the reference table about equally (t {z:.1f} < "
+                                f"the reference table about equally (z {z:.1f} < "
                                 f"{MIRROR_DOUBT_Z:g}); from where the device stands the "
                                 "wall echoes that tell the directions apart are weak: a "
                                 "place nearer a wall, off the fan's axis, makes them "
@@ -623,7 +635,7 @@ class AliasWatch:
             sxx = float(((x - xm) ** 2).sum())
             slope = float(((x - xm) * (u - um)).sum()) / sxx if sxx > 0 else 0.0
             line = np.mod(um + slope * (x - xm), 1.0)
-            t1 = mirror_evidence(self._dist[idx], line, self.fine).t
+            t1 = mirror_evidence(self._dist[idx], line, self.fine).z
             if math.isfinite(t1):
                 self._pool_sum += t1
                 self._pool_n += 1
