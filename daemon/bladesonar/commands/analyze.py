@@ -32,7 +32,7 @@ example:
 """
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("analyze", help="airflow of a recording, and its rotation direction "
                        "and rate against a reference", description="Tell the fan's airflow "
                        "(down or up) from the echoes alone; with --reference also match "

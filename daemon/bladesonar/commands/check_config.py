@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("check-config", help="validate a YAML config and print the result",
                        description="Validate a YAML config file: unknown keys, types and "
                                    "ranges, with file and line. Exit 0 if valid, 2 if not.")

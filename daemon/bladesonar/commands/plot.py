@@ -8,11 +8,17 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+    from pathlib import Path
+
     from ..config import Config
     from ..dsp.gate import Gate
+
+#: The number type an option converts its text to (``_positive``).
+_Num = TypeVar("_Num", int, float)
 
 #: Most rows and longest row `plot track` reads (memory bounded).
 MAX_ROWS = 500_000
@@ -54,8 +60,8 @@ def _point(text: str) -> tuple[float, float]:
     return x, y
 
 
-def _positive(kind: type, what: str):
-    def conv(text: str):
+def _positive(kind: Callable[[str], _Num], what: str) -> Callable[[str], _Num]:
+    def conv(text: str) -> _Num:
         try:
             v = kind(text)
         except ValueError:
@@ -66,7 +72,7 @@ def _positive(kind: type, what: str):
     return conv
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("plot", help="pictures: range-doppler, ISAR, distance matrix, track, "
                        "simulated paths (PNG/SVG)",
                        description="Draw the paper's pictures from a recording or a scene.",
@@ -88,7 +94,8 @@ def _common(q: argparse.ArgumentParser, config: bool = True) -> None:
     q.set_defaults(func=run)
 
 
-def _rd_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
+def _rd_options(kinds: argparse._SubParsersAction[argparse.ArgumentParser]
+                ) -> argparse.ArgumentParser:
     q = kinds.add_parser("rd", help="range-doppler map of a recording")
     q.add_argument("wav", metavar="IN.wav")
     q.add_argument("--reference", metavar="REF", help="mark this reference's gate (default: "
@@ -102,7 +109,8 @@ def _rd_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return q
 
 
-def _isar_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
+def _isar_options(kinds: argparse._SubParsersAction[argparse.ArgumentParser]
+                  ) -> argparse.ArgumentParser:
     q = kinds.add_parser("isar", help="ISAR image in the fan's rotating frame")
     q.add_argument("wav", metavar="IN.wav")
     src = q.add_mutually_exclusive_group(required=True)
@@ -132,7 +140,8 @@ def _isar_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return q
 
 
-def _matrix_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
+def _matrix_options(kinds: argparse._SubParsersAction[argparse.ArgumentParser]
+                    ) -> argparse.ArgumentParser:
     q = kinds.add_parser("matrix", help="pairwise matching distance of two recordings")
     q.add_argument("wav_a", metavar="A.wav", help="rows (e.g. the reference recording)")
     q.add_argument("wav_b", metavar="B.wav", nargs="?",
@@ -147,7 +156,8 @@ def _matrix_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParse
     return q
 
 
-def _track_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
+def _track_options(kinds: argparse._SubParsersAction[argparse.ArgumentParser]
+                   ) -> argparse.ArgumentParser:
     q = kinds.add_parser("track", help="the angular fingerprint track of analyze --track rows")
     q.add_argument("rows", metavar="ROWS.jsonl", help="output of 'bladesonar analyze --track' "
                    "('-' = standard input)")
@@ -156,7 +166,8 @@ def _track_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser
     return q
 
 
-def _sim_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
+def _sim_options(kinds: argparse._SubParsersAction[argparse.ArgumentParser]
+                 ) -> argparse.ArgumentParser:
     q = kinds.add_parser("sim", help="simulated multipath ranges, ccw vs cw")
     q.add_argument("--scene", required=True, metavar="SCENE.yaml")
     q.add_argument("--rate", type=_positive(float, "give the fan rate in Hz > 0"),
@@ -167,7 +178,8 @@ def _sim_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return q
 
 
-def _airflow_options(kinds: argparse._SubParsersAction) -> argparse.ArgumentParser:
+def _airflow_options(kinds: argparse._SubParsersAction[argparse.ArgumentParser]
+                     ) -> argparse.ArgumentParser:
     q = kinds.add_parser("airflow", help="range-time picture of the moving echoes: the "
                          "glint streaks and their slope")
     q.add_argument("wav", metavar="IN.wav")
@@ -195,7 +207,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cfg(args):
+def _cfg(args: argparse.Namespace) -> Config:
     from ..io.config_file import load_config
 
     return load_config(getattr(args, "config", None))
@@ -212,7 +224,7 @@ def _ref_gate(args: argparse.Namespace, cfg: Config) -> Gate | None:
     return ref.gate
 
 
-def _rd(args):
+def _rd(args: argparse.Namespace) -> Path:
     from .. import imaging
     from ..io.wav import read_wav
     from ..plots import rd
@@ -224,7 +236,7 @@ def _rd(args):
                    max_range_m=args.max_range)
 
 
-def _isar(args):
+def _isar(args: argparse.Namespace) -> Path:
     from .. import imaging
     from ..errors import ConfigError
     from ..io.wav import read_wav
@@ -268,7 +280,7 @@ def _isar(args):
                      hub_m=scene.hub_radius_m if scene and scene.hub_radius_m > 0 else None)
 
 
-def _matrix(args):
+def _matrix(args: argparse.Namespace) -> Path:
     from pathlib import Path
 
     from .. import imaging
@@ -299,7 +311,7 @@ def _matrix(args):
                        title=args.title or "", centred=not args.plain)
 
 
-def _track(args):
+def _track(args: argparse.Namespace) -> Path:
     import json
     import sys
 
@@ -340,7 +352,7 @@ def _track(args):
                       min_confidence=cfg.tracking.min_confidence, true_reversals=true_rev)
 
 
-def _sim(args):
+def _sim(args: argparse.Namespace) -> Path:
     from .. import imaging
     from ..io.scene_file import load_scene
     from ..plots import sim
@@ -358,7 +370,7 @@ def _sim(args):
     return sim.draw(ccw, cw, args.out, title=title, direct_ccw=dc, direct_cw=dw)
 
 
-def _airflow(args):
+def _airflow(args: argparse.Namespace) -> Path:
     from ..airflow_recording import range_time
     from ..io.wav import read_wav
     from ..plots import airflow

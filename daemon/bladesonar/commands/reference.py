@@ -33,7 +33,7 @@ seconds or at once on SIGHUP (systemctl reload bladesonar).
 """
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("reference", help="make a reference (angular fingerprint) from a "
                        "recording of the fan turning steadily",
                        description="Estimate the blade period of a recording of the turning "

@@ -15,8 +15,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from multiprocessing.pool import Pool
+
     from ..config import Config
-    from ..runtime_report import Grid
+    from ..reference_build import Reference
+    from ..runtime_report import Grid, Job
 
 EPILOG = """\
 The full sweep (observation window 0.25-30 s, SNR -5..30 dB, rate ratios 0..9, 3-5 blades,
@@ -36,7 +39,7 @@ examples:
 """
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("report", help="accuracy against observation time, SNR, rate, blades "
                        "and room, and event latency against SNR, on simulated scenes "
                        "(Markdown, JSON, PNG)",
@@ -57,17 +60,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-_STATE: dict = {}
+_STATE: dict[str, Any] = {}
 
 
-def _init(state: dict) -> None:
+def _init(state: dict[str, Any]) -> None:
     import logging
 
     logging.getLogger("bladesonar.sim").setLevel(logging.ERROR)
     _STATE.update(state)
 
 
-def _ref_task(key):
+def _ref_task(key: tuple[str, int]) -> tuple[tuple[str, int], Reference, float]:
     import time
 
     from ..runtime_report import make_reference
@@ -78,7 +81,7 @@ def _ref_task(key):
     return key, ref, time.process_time() - t0
 
 
-def _job_task(job):
+def _job_task(job: Job) -> list[dict[str, Any]]:
     from ..runtime_report import run_airflow_job, run_job
 
     if job.airflow:
@@ -87,7 +90,7 @@ def _job_task(job):
                    _STATE["refs"][(job.scene, job.blades)], _STATE["grid"])
 
 
-def _pool(n: int, state: dict):
+def _pool(n: int, state: dict[str, Any]) -> Pool:
     import multiprocessing as mp
 
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
@@ -99,7 +102,7 @@ def _tuples(fam: dict[str, Any]) -> dict[str, Any]:
     return {k: (tuple(v) if isinstance(v, list) else v) for k, v in fam.items()}
 
 
-def load_grid(path: str):
+def load_grid(path: str) -> Grid:
     import dataclasses
 
     from ..errors import ConfigError

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("retire", help="remove the device from Home Assistant and its "
                                       "retained MQTT topics",
                        description="Publish an empty retained payload on the device's "

@@ -21,7 +21,7 @@ example (two terminals):
 """
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("room", help="loopback self-test: a simulated room on two ALSA FIFO "
                        "PCMs (no sound card)", description="Serve the loopback room: read "
                        "what the daemon plays through ALSA, write the scene's echoes of it "

@@ -34,7 +34,7 @@ examples:
 EXIT_CONFIG = 78
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("run", help="the device daemon: play, record, track, publish",
                        description="Run the sonar daemon.", epilog=EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
 
     early_hup = {"seen": False}     # a plain store: a handler must take no lock
 
-    def on_early_hup(*_) -> None:
+    def on_early_hup(*_: object) -> None:
         early_hup["seen"] = True
 
     signal.signal(signal.SIGHUP, on_early_hup)

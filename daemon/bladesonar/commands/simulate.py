@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from ..config import Config
     from ..sim.render import Simulator
     from ..sim.scene import Scene
@@ -35,7 +37,7 @@ example:
 
 
 def _number(what: str, lo: float | None = None, hi: float | None = None,
-            lo_open: bool = False, allow_inf: bool = False):
+            lo_open: bool = False, allow_inf: bool = False) -> Callable[[str], float]:
     def conv(text: str) -> float:
         try:
             v = float(text)
@@ -51,7 +53,7 @@ def _number(what: str, lo: float | None = None, hi: float | None = None,
     return conv
 
 
-def _count(what: str, lo: int):
+def _count(what: str, lo: int) -> Callable[[str], int]:
     def conv(text: str) -> int:
         try:
             v = int(text)
@@ -63,7 +65,7 @@ def _count(what: str, lo: int):
     return conv
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "simulate", help="render a scene (room, fan, rotation schedule) to WAV + truth JSON",
         description="Simulate the pulsed sonar in a 2-D room, or a 3-D box room with "
