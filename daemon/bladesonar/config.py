@@ -9,7 +9,7 @@ all come from one place. Downstream code receives these objects, never raw dicts
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -345,7 +345,7 @@ def from_mapping(data: Any, *, source: str | None = None,
                  lines: Mapping[str, int] | None = None) -> Config:
     """Validate a parsed YAML document and build the settings object."""
     lines = lines or {}
-    cfg = build(Config, data, "", lines, source)
+    cfg: Config = build(Config, data, "", lines, source)
     _check_cross(cfg, lines, source)
     return cfg
 
@@ -361,14 +361,15 @@ def replace(cfg: Config, **sections: Mapping[str, Any]) -> Config:
     return dataclasses.replace(from_mapping(data), base_dir=cfg.base_dir)
 
 
-def to_mapping(cfg: Any) -> dict[str, Any]:
+def to_mapping(cfg: Config) -> dict[str, Any]:
     """The settings as plain data (what a reference file or a status message records)."""
     data = dataclasses.asdict(cfg)
     data.pop("base_dir", None)
     return data
 
 
-def iter_fields(cls: type = Config, prefix: str = ""):
+def iter_fields(cls: type = Config, prefix: str = ""
+                ) -> Iterator[tuple[str, dataclasses.Field[Any]]]:
     """Yield (dotted key, field) for every leaf setting: drives docs and the example file."""
     for f in fields_of(cls).values():
         section = section_type(f)

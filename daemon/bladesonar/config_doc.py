@@ -8,12 +8,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from typing import TYPE_CHECKING, Any
 
 from . import config
 from .schema import number_text
 
+if TYPE_CHECKING:
+    from collections.abc import Mapping
 
-def _domain(md: dict) -> str:
+
+def _domain(md: Mapping[str, Any]) -> str:
     parts = []
     if md.get("choices"):
         parts.append("one of " + ", ".join(map(str, md["choices"])))
