@@ -59,7 +59,8 @@ def speaker_response(nz: Nuisances, fs: float) -> np.ndarray:
     n = int(np.searchsorted(e, e[-1] * (1 - 1e-8))) + 1
     h = h[:max(n, 1)]
     # unit peak, like the pulse shapes: the coupling's height stays amplitude x gain
-    return h / np.abs(h).max()
+    unit: np.ndarray = h / np.abs(h).max()
+    return unit
 
 
 def agc_gain(nz: Nuisances, seed: int, n0: int, n: int, fs: float) -> np.ndarray:

@@ -91,15 +91,18 @@ def paths(scene: Scene, fan_angle_rad: float, *, wall_bounces: bool = True) -> P
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    out: np.ndarray = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
+    out: np.ndarray = a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
+    return out
 
 
 def _norm(a: np.ndarray) -> np.ndarray:
-    return np.hypot(a[..., 0], a[..., 1])
+    out: np.ndarray = np.hypot(a[..., 0], a[..., 1])
+    return out
 
 
 def _blocked(p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2: np.ndarray,
@@ -118,7 +121,8 @@ def _blocked(p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2: np.ndarray,
     t = _cross(w, e) / safe
     u = _cross(w, d) / safe
     hit = ok & (t > 1e-9) & (t < 1 - 1e-9) & (u >= -1e-12) & (u <= 1 + 1e-12) & ~exclude
-    return hit.any(axis=-1)
+    blocked: np.ndarray = hit.any(axis=-1)
+    return blocked
 
 
 def path_table(scene: Scene, angles: np.ndarray, *, wall_bounces: bool = True) -> PathTable:
@@ -194,7 +198,7 @@ class _Obstacles:
 
     @property
     def walls(self) -> int:
-        return self.own_wall.shape[0]
+        return int(self.own_wall.shape[0])
 
     @classmethod
     def of(cls, scene: Scene, blades: _BladeLines) -> _Obstacles:

@@ -153,7 +153,8 @@ _GAPS = {"dropouts": [(66150, 3 * 1297 + 500), (154350, 3 * 1297 + 500)]}
 #: or None for the scene's, settings of the device and room in reference and probe alike,
 #: settings of the probe only, extra schedule items of the probe, simulator keywords of the
 #: probe). Drop-outs are at 1.5 s and 3.5 s of the probe, 3 PRIs and a bit each.
-PRESETS: dict[str, tuple[float | None, dict, dict, str, dict]] = {
+PRESETS: dict[str, tuple[float | None, dict[str, Any], dict[str, Any], str,
+                          dict[str, Any]]] = {
     "none": (None, {}, {}, "", {}),
     "clipped coupling (10x full scale)": (20.0, _SPEAKER, {}, "", {}),
     "reverberation RT60 0.5 s": (None, {"rt60_s": 0.5}, {}, "", {}),

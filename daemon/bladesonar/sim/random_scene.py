@@ -29,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +38,9 @@ from .nuisances import Nuisances
 from .scene import Scene
 from .scene3d import Scene3D
 from .schedule import ordinary_use
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 #: Seeds from this one on are held out: no tuning decision may look at them.
 HELD_OUT_FROM = 100_000
@@ -131,11 +134,11 @@ def _inside(p: np.ndarray, V: np.ndarray) -> bool:
     return inside
 
 
-def _point(rng: np.random.Generator, V: np.ndarray, clear: float, ok=lambda p: True
-           ) -> np.ndarray | None:
+def _point(rng: np.random.Generator, V: np.ndarray, clear: float,
+           ok: Callable[[np.ndarray], bool] = lambda p: True) -> np.ndarray | None:
     lo, hi = V.min(axis=0), V.max(axis=0)
     for _ in range(500):
-        p = rng.uniform(lo, hi)
+        p: np.ndarray = rng.uniform(lo, hi)
         if _inside(p, V) and _clearance(p, V) >= clear and ok(p):
             return p
     return None
@@ -183,8 +186,12 @@ def draw(seed: int, prf: float = 44100.0 / 1297) -> SceneDraw:
         centre = _point(rng, V, tip + 0.3)
         if centre is None:
             continue
-        sensor = _point(rng, V, 0.25, lambda p, c=centre, t=tip:
-                        t + TIP_CLEARANCE_M <= math.dist(p, c) <= MAX_RANGE_M)
+
+        # a def, not a lambda: mypy cannot infer a lambda with defaults as a Callable
+        def in_reach(p: np.ndarray, c: np.ndarray = centre, t: float = tip) -> bool:
+            return t + TIP_CLEARANCE_M <= math.dist(p, c) <= MAX_RANGE_M
+
+        sensor = _point(rng, V, 0.25, in_reach)
         if sensor is not None:
             break
     refl = [round(float(rng.uniform(*REFLECTION)), 3) for _ in verts]

@@ -46,7 +46,7 @@ import logging
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -60,6 +60,9 @@ from .reverb import Tail
 from .scene import Scene
 from .scene3d import Scene3D
 from .walker import walker_paths
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +83,7 @@ class Dropout:
     samples: int
 
 
-def echo_response(scene: Scene, cfg, fan_angle_rad: float, n_samples: int, *,
+def echo_response(scene: Scene, cfg: Config, fan_angle_rad: float, n_samples: int, *,
                   include_coupling: bool = True, wall_bounces: bool = True) -> np.ndarray:
     """Band-limited room+fan impulse response over one PRI (or ``n_samples``), float64.
 
@@ -104,7 +107,7 @@ def geometry_of(scene: Scene | Scene3D) -> Any:
     return geometry
 
 
-def gate_samples(cfg) -> tuple[float, float, tuple[float, float]]:
+def gate_samples(cfg: Config) -> tuple[float, float, tuple[float, float]]:
     """The range gate as delays in samples from the coupling edge, and in metres."""
     g0 = cfg.scene.gate_start_m if cfg.scene.gate_start_m is not None else DEFAULT_GATE_START_M
     g1 = cfg.scene.gate_stop_m if cfg.scene.gate_stop_m is not None else cfg.max_range_m
@@ -135,7 +138,7 @@ class Simulator:
         else none.
     """
 
-    def __init__(self, scene: Scene | Scene3D, cfg, schedule: Any = None, *,
+    def __init__(self, scene: Scene | Scene3D, cfg: Config, schedule: Any = None, *,
                  snr_db: float | None = None, seed: int = 0,
                  start_offset: float | None = None, drift_ppm: float = 0.0,
                  dropouts: int | Sequence[tuple[int, int]] = 0, dropout_samples: int = 64,
@@ -263,7 +266,7 @@ class Simulator:
         delta = np.sum((S - s.wall_a) * s.wall_normals, axis=1)
         img = S - 2 * delta[:, None] * s.wall_normals
         far = np.hypot(*(img - C).T).max() + s.tip_radius_m
-        L = max(2 * np.abs(delta).max(), np.hypot(*(S - C)) + s.tip_radius_m + far,
+        L: float = max(2 * np.abs(delta).max(), np.hypot(*(S - C)) + s.tip_radius_m + far,
                 2 * (np.hypot(*(S - C)) + s.tip_radius_m))
         return L / self.c * self.fs + 1.0
 
@@ -414,7 +417,7 @@ class Simulator:
         self._blocks[b] = hit
         return hit
 
-    def _pulse_rows(self, k0: int, k1: int):
+    def _pulse_rows(self, k0: int, k1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Geometry rows for pulses k0..k1-1 (concatenated from blocks)."""
         ds, gs, vs = [], [], []
         for b in range(k0 // _PULSE_BLOCK, (k1 - 1) // _PULSE_BLOCK + 1):
@@ -624,8 +627,8 @@ class Simulator:
             kdone = kend
 
 
-def simulate(scene: Scene | Scene3D, cfg, seconds: float, schedule: Any = None, **kwargs: Any
-             ) -> tuple[np.ndarray, dict[str, Any]]:
+def simulate(scene: Scene | Scene3D, cfg: Config, seconds: float, schedule: Any = None,
+             **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
     """Whole run in memory: (float64 samples, truth dict with meta, pulses, summary).
 
     For short runs (tests); keyword arguments as ``Simulator`` plus ``chunk_samples``.

@@ -102,7 +102,8 @@ class Tail:
                                                       0, self.length)
                                       for t, g in self._parts])
             self._filled[i] = True
-        return self._wave[i]
+        wave: np.ndarray = self._wave[i]
+        return wave
 
     def add(self, out: np.ndarray, n0: int, edges: np.ndarray, phases: np.ndarray) -> None:
         """Add the tails of pulses with coupling edges ``edges`` (capture samples) and blade

@@ -20,7 +20,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, ClassVar, NoReturn, Protocol, TypeVar
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from ..errors import ConfigError
 from ..schema import opt
 from . import nuisances as _nuisances
 from . import schedule as _schedule
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 #: K used by ``geometry`` when neither the scene nor a config gives one (config default).
 DEFAULT_BLADES = 4
@@ -85,7 +88,8 @@ class Scene:
         d = self.wall_b - self.wall_a
         ln = np.hypot(d[:, 0], d[:, 1])[:, None]
         left = np.stack([-d[:, 1], d[:, 0]], axis=1) / ln
-        return left if _signed_area(self.wall_a) > 0 else -left
+        normals: np.ndarray = left if _signed_area(self.wall_a) > 0 else -left
+        return normals
 
     @property
     def tip_radius_m(self) -> float:
@@ -95,7 +99,7 @@ class Scene:
     def sensor_fan_distance_m(self) -> float:
         return math.dist(self.sensor, self.fan_centre)
 
-    def with_config(self, cfg) -> Scene:
+    def with_config(self, cfg: Config) -> Scene:
         """The scene with its blade count settled against ``cfg.scene.blades``."""
         return settle_blades(self, cfg)
 
@@ -301,7 +305,8 @@ def _dist_to_walls(p: np.ndarray, V: np.ndarray) -> np.ndarray:
     d = B - A
     t = np.clip(np.sum((p - A) * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-300), 0, 1)
     q = A + t[:, None] * d
-    return np.hypot(*(p - q).T)
+    dist: np.ndarray = np.hypot(*(p - q).T)
+    return dist
 
 
 def _self_intersects(V: np.ndarray) -> bool:
@@ -316,9 +321,10 @@ def _self_intersects(V: np.ndarray) -> bool:
     return False
 
 
-def _segments_cross(p1, p2, q1, q2) -> bool:
-    def orient(a, b, c):
-        return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+def _segments_cross(p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2: np.ndarray) -> bool:
+    def orient(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
+        area: float = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        return area
 
     d1, d2 = orient(q1, q2, p1), orient(q1, q2, p2)
     d3, d4 = orient(p1, p2, q1), orient(p1, p2, q2)
@@ -326,11 +332,26 @@ def _segments_cross(p1, p2, q1, q2) -> bool:
         ax = 0 if abs(p2[0] - p1[0]) >= abs(p2[1] - p1[1]) else 1
         lo1, hi1 = sorted((p1[ax], p2[ax]))
         lo2, hi2 = sorted((q1[ax], q2[ax]))
-        return max(lo1, lo2) <= min(hi1, hi2)
-    return d1 * d2 <= 0 and d3 * d4 <= 0
+        return bool(max(lo1, lo2) <= min(hi1, hi2))
+    return bool(d1 * d2 <= 0 and d3 * d4 <= 0)
 
 
-def settle_blades(scene: Any, cfg: Any) -> Any:
+class _BladedScene(Protocol):
+    """What :func:`settle_blades` reads of a scene (Scene or Scene3D), a dataclass."""
+
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]
+
+    @property
+    def blades(self) -> int | None: ...
+
+    @property
+    def source(self) -> str | None: ...
+
+
+_SceneT = TypeVar("_SceneT", bound=_BladedScene)
+
+
+def settle_blades(scene: _SceneT, cfg: Config) -> _SceneT:
     """A scene (2-D or 3-D: a dataclass with ``blades`` and ``source``) with its blade
     count settled against ``cfg.scene.blades``: taken from the config when the scene
     leaves it open, refused when the two disagree."""

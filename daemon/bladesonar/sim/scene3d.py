@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
 
@@ -35,6 +35,9 @@ from ..schema import opt
 from . import nuisances as _nuisances
 from . import schedule as _schedule
 from .scene import DEFAULT_BLADES, settle_blades
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 SURFACES = ("wall_x0", "wall_x1", "wall_y0", "wall_y1", "floor", "ceiling")
 #: The sensor and the fan centre must sit at least this far inside every surface.
@@ -107,7 +110,7 @@ class Scene3D:
         return [list(self.size), list(self.surface_reflection), list(self.sensor),
                 list(self.fan_centre)]
 
-    def with_config(self, cfg: Any) -> Scene3D:
+    def with_config(self, cfg: Config) -> Scene3D:
         """The scene with its blade count settled against ``cfg.scene.blades``."""
         return settle_blades(self, cfg)
 

@@ -140,7 +140,7 @@ class Schedule:
                      ) -> np.ndarray:
         """Integral from ``a`` to ``t`` of (r0 + b1 (tau - a)) * wobble factor, in turns."""
         u = t - a
-        base = r0 * u + 0.5 * b1 * u * u
+        base: np.ndarray = r0 * u + 0.5 * b1 * u * u
         w = self.wobble
         if w is None or w.amplitude == 0:
             return base
@@ -153,7 +153,8 @@ class Schedule:
         sh = np.sin(h)
         osc = (2.0 * r0 * np.sin(m) * sh / om - b1 * u * np.cos(om * t) / om
                + 2.0 * b1 * np.cos(m) * sh / (om * om))
-        return base + w.amplitude * osc
+        turns: np.ndarray = base + w.amplitude * osc
+        return turns
 
     def _locate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                               np.ndarray, np.ndarray]:
@@ -167,7 +168,8 @@ class Schedule:
         """Signed rate without the wobble, Hz (+ = ccw); right-continuous at steps."""
         t = np.asarray(t, dtype=np.float64)
         _, a, r0, b1, _ = self._locate(t)
-        return r0 + b1 * (t - a)
+        rate: np.ndarray = r0 + b1 * (t - a)
+        return rate
 
     def rate_at(self, t: np.ndarray) -> np.ndarray:
         """Signed instantaneous rate in Hz (+ = ccw) at times ``t`` (s), wobble included;
@@ -180,7 +182,8 @@ class Schedule:
         """Integral of ``rate_at`` from 0 to ``t``, in turns (exact closed form)."""
         t = np.asarray(t, dtype=np.float64)
         _, a, r0, b1, turns0 = self._locate(t)
-        return turns0 + self._piece_turns(a, r0, b1, t)
+        turns: np.ndarray = turns0 + self._piece_turns(a, r0, b1, t)
+        return turns
 
     def angle_at(self, t: np.ndarray, start_rad: float = 0.0) -> np.ndarray:
         """Unwrapped fan angle in radians (+ = ccw) at times ``t``."""

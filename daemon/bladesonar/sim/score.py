@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import overload
+from typing import Any, overload
 
 import numpy as np
 
@@ -148,14 +148,14 @@ class Score:
     def latencies(self, kind: str) -> list[float]:
         return [lat for ev, lat in self.hits if ev.kind == kind]
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         """JSON-able figures: counts, latency median/max per kind, state shares, rate
         error percentiles."""
-        def stats(xs: Sequence[float]) -> dict | None:
+        def stats(xs: Sequence[float]) -> dict[str, float] | None:
             return None if not xs else {"n": len(xs), "median": round(float(np.median(xs)), 2),
                                         "p95": round(float(np.percentile(xs, 95)), 2),
                                         "max": round(float(np.max(xs)), 2)}
-        def pct(xs: Sequence[float]) -> dict | None:
+        def pct(xs: Sequence[float]) -> dict[str, float] | None:
             return None if not len(xs) else {
                 "median": round(float(np.median(xs)), 4),
                 "p95": round(float(np.percentile(xs, 95)), 4), "n": int(len(xs))}
