@@ -3,9 +3,12 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .answer import MOTION_EVENTS
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 
 def _pct(v: float | None) -> str:
@@ -22,7 +25,9 @@ def _table(head: list[str], body: list[list[str]]) -> list[str]:
     return out
 
 
-def _grid(rows, family, key, fmt, scene=None, blades=None, ratio=None) -> list[str]:
+def _grid(rows: list[dict[str, Any]], family: str, key: str,
+          fmt: Callable[[dict[str, Any]], str], scene: str | None = None,
+          blades: int | None = None, ratio: float | None = None) -> list[str]:
     g = [r for r in rows if r["family"] == family and (scene is None or r["scene"] == scene)
          and (blades is None or r["blades"] == blades) and (ratio is None or r["ratio"] == ratio)]
     snrs = sorted({r["snr_db"] for r in g})
@@ -37,7 +42,7 @@ def _grid(rows, family, key, fmt, scene=None, blades=None, ratio=None) -> list[s
     return _table(["SNR \\ window"] + [f"{w:g} s" for w in wins], body)
 
 
-def _acc(r) -> str:
+def _acc(r: dict[str, Any]) -> str:
     s = _pct(r["correct"])
     if r["unknown"] > 0:
         s += f" ({_pct(r['unknown'])}?)"
@@ -46,7 +51,7 @@ def _acc(r) -> str:
     return s
 
 
-def _err(r) -> str:
+def _err(r: dict[str, Any]) -> str:
     if r["rate_err_median"] is None:
         return "–"
     return f"{_pct1(r['rate_err_median'])} / {_pct1(r['rate_err_p95'])}"

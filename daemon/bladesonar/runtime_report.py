@@ -44,7 +44,7 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -57,6 +57,10 @@ from .sim.nuisances import PRESETS, Nuisances
 from .sim.render import Simulator
 from .sim.schedule import parse as parse_schedule
 from .sim.score import score_events, true_time, truth_events
+
+if TYPE_CHECKING:
+    from .sim.scene import Scene
+    from .sim.score import TruthEvent
 
 ALIAS_NOTE = "|rate| >= PRF / (2 K): the blade phase steps half a period or more per pulse"
 
@@ -237,11 +241,11 @@ def sweep_config(cfg: _config.Config, blades: int, window_s: float | None = None
     return _config.replace(cfg, **d)
 
 
-def _scene(scene, blades: int):
+def _scene(scene: Scene, blades: int) -> Scene:
     return dataclasses.replace(scene, blades=blades)
 
 
-def make_reference(scene, cfg: _config.Config, blades: int, grid: Grid) -> Reference:
+def make_reference(scene: Scene, cfg: _config.Config, blades: int, grid: Grid) -> Reference:
     """The reference of a (scene, blade count): a steady ccw run at ``ref_rate_hz``."""
     c = sweep_config(cfg, blades)
     sim = Simulator(_scene(scene, blades), c, f"ccw:{grid.ref_rate_hz}:{grid.ref_seconds}",
@@ -256,11 +260,11 @@ def _schedule(rate_hz: float, seconds: float) -> str:
     return f"{'ccw' if rate_hz > 0 else 'cw'}:{abs(rate_hz)}:{seconds}"
 
 
-def _render(scene, cfg: _config.Config, schedule: str, seconds: float, seed: int,
+def _render(scene: Scene, cfg: _config.Config, schedule: str, seconds: float, seed: int,
             drift_ppm: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
     """(clean, unit noise, fan power) of one run: the simulator's noise for seed, scaled to
     sigma = 1, and the power its SNR refers to (so x = clean + sqrt(P / 10^(snr/10)) n)."""
-    def run(snr):
+    def run(snr: float | None) -> tuple[np.ndarray, Simulator]:
         sim = Simulator(scene, cfg, schedule, snr_db=snr, seed=seed, include_paths=False,
                         drift_ppm=drift_ppm)
         x = np.concatenate([c for c, _ in sim.chunks(seconds)])
@@ -295,7 +299,7 @@ def _one(x: np.ndarray, cfg: _config.Config, ref: Reference
     return s, time.process_time() - t0, err
 
 
-def run_job(job: Job, scene, cfg: _config.Config, ref: Reference, grid: Grid
+def run_job(job: Job, scene: Scene, cfg: _config.Config, ref: Reference, grid: Grid
             ) -> list[dict[str, Any]]:
     """All trials of one job, as flat records (see the module notes for the scoring)."""
     sc = _scene(scene, job.blades)
@@ -340,10 +344,10 @@ def run_job(job: Job, scene, cfg: _config.Config, ref: Reference, grid: Grid
 
 
 #: References of the nuisance rows, per (scene, blades, preset), kept by each worker.
-_NUISANCE_REFS: dict[tuple, Reference] = {}
+_NUISANCE_REFS: dict[tuple[str, int, str], Reference] = {}
 
 
-def _run_nuisance(job: Job, sc, base, grid: Grid) -> list[dict[str, Any]]:
+def _run_nuisance(job: Job, sc: Scene, base: _config.Config, grid: Grid) -> list[dict[str, Any]]:
     """A nuisance row's trials: a reference recorded through the preset's device and room
     (``ref_seconds`` at ``ref_rate_hz`` ccw, 10 dB), then a probe of ``max(windows) + 4`` s
     at each SNR (30 ppm of drift) answered over its last window, scored against the
@@ -391,7 +395,8 @@ def _run_nuisance(job: Job, sc, base, grid: Grid) -> list[dict[str, Any]]:
     return out
 
 
-def _run_reversal(job: Job, sc, base, ref: Reference, grid: Grid) -> list[dict[str, Any]]:
+def _run_reversal(job: Job, sc: Scene, base: _config.Config, ref: Reference, grid: Grid
+                  ) -> list[dict[str, Any]]:
     rate = abs(job.true_ratio) * grid.ref_rate_hz
     t_rev, total = grid.reversal_at_s, grid.reversal_seconds
     sched = f"ccw:{rate}:{t_rev},cw:{rate}:{total - t_rev}"
@@ -418,7 +423,8 @@ def _run_reversal(job: Job, sc, base, ref: Reference, grid: Grid) -> list[dict[s
     return out
 
 
-def _tracked(x: np.ndarray, cfg: _config.Config, ref: Reference) -> tuple[list[dict], float]:
+def _tracked(x: np.ndarray, cfg: _config.Config, ref: Reference
+             ) -> tuple[list[dict[str, Any]], float]:
     """The per-pulse rows of ``analyze(track=True)`` (none if it refuses) and its CPU time."""
     t0 = time.process_time()
     try:
@@ -438,7 +444,7 @@ def transitions_schedule(template: str, ratio: float, ref_rate_hz: float
     return sched, float(sum(seg.seconds for seg in parse_schedule(sched).segments))
 
 
-def score_transitions(truth, events: list[tuple[str, float]]) -> dict[str, Any]:
+def score_transitions(truth: list[TruthEvent], events: list[tuple[str, float]]) -> dict[str, Any]:
     """Per kind: truth events, hit latencies (s, + late), missed; and the false events."""
     sc = score_events(truth, events)
     per = {k: sum(1 for e in truth if e.kind == k) for k in MOTION_EVENTS}
@@ -451,7 +457,8 @@ def score_transitions(truth, events: list[tuple[str, float]]) -> dict[str, Any]:
                 false_detail=[(k, round(t, 2)) for k, t in sc.false])
 
 
-def _run_transitions(job: Job, sc, base, ref: Reference, grid: Grid) -> list[dict[str, Any]]:
+def _run_transitions(job: Job, sc: Scene, base: _config.Config, ref: Reference, grid: Grid
+                     ) -> list[dict[str, Any]]:
     ratio = job.true_ratio
     sched, total = transitions_schedule(grid.transitions_schedule, ratio, grid.ref_rate_hz)
     truth = truth_events(parse_schedule(sched), total)
@@ -492,7 +499,7 @@ def _q(v: list[float], q: float) -> float | None:
 
 def aggregate(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One row per (family, scene, blades, |ratio|, snr, window): every number."""
-    groups: dict[tuple, list[dict]] = {}
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
     for r in records:
         if "window_s" not in r:
             continue
@@ -630,7 +637,7 @@ def aggregate_airflow(records: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def aggregate_reversals(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    groups: dict[tuple, list[dict]] = {}
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
     for r in records:
         if "detect_s" in r:
             groups.setdefault((r["scene"], r["blades"], abs(r["ratio"]), r["snr_db"]),
@@ -650,7 +657,7 @@ def aggregate_reversals(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def aggregate_transitions(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One row per (scene, blades, |ratio|, snr, event kind): detected share, latency
     median / p95 / max of the hits, false events of that kind per trial and per hour."""
-    groups: dict[tuple, list[dict]] = {}
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
     for r in records:
         if "latency_s" in r:
             groups.setdefault((r["scene"], r["blades"], abs(r["ratio"]), r["snr_db"]),
@@ -665,7 +672,7 @@ def aggregate_transitions(records: list[dict[str, Any]]) -> list[dict[str, Any]]
     return rows
 
 
-def _transition_row(g: list[dict], kind: str, audio_s: float) -> dict[str, Any]:
+def _transition_row(g: list[dict[str, Any]], kind: str, audio_s: float) -> dict[str, Any]:
     n_truth = sum(r["truth_events"][kind] for r in g)
     lat = [v for r in g for v in r["latency_s"][kind]]
     false = sum(r["false"][kind] for r in g)

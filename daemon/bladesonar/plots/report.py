@@ -3,6 +3,7 @@ line per SNR), and compute time against the window."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +12,7 @@ import numpy as np
 from . import FIGSIZE, pyplot, save
 
 
-def _plain_ticks(ax) -> None:
+def _plain_ticks(ax: Any) -> None:
     """Log axes labelled 0.2, 1, 4 rather than 2x10^-1."""
     from matplotlib.ticker import FuncFormatter
 
@@ -21,7 +22,8 @@ def _plain_ticks(ax) -> None:
         axis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
 
 
-def _by_snr(rows: list[dict[str, Any]], family: str = "window_snr"):
+def _by_snr(rows: list[dict[str, Any]], family: str = "window_snr"
+            ) -> Iterator[tuple[float, list[dict[str, Any]]]]:
     ws = [r for r in rows if r["family"] == family]
     for s in sorted({r["snr_db"] for r in ws}):
         g = sorted((r for r in ws if r["snr_db"] == s), key=lambda r: r["window_s"])

@@ -3,8 +3,9 @@ decision, and reversals (decided, and true when a truth file is given)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -16,8 +17,8 @@ COLOURS = {Direction.SAME: "#2ca02c", Direction.REVERSED: "#d62728",
            Direction.STOPPED: "#7f7f7f", Direction.UNKNOWN: "#ffffff"}
 
 
-def _spans(t: np.ndarray, labels: np.ndarray):
-    """(start, end, label) runs of equal labels."""
+def _spans(t: np.ndarray, labels: np.ndarray) -> Iterator[tuple[float, float, Any]]:
+    """(start, end, label) runs of equal labels (a label: an element of ``labels``)."""
     if len(t) == 0:
         return
     edges = np.nonzero(labels[1:] != labels[:-1])[0] + 1
