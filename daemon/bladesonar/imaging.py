@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import fft as sp_fft
@@ -333,7 +333,8 @@ def distance_matrix(fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
     a = np.asarray(fa, dtype=np.float64)
     b = np.asarray(fb, dtype=np.float64)
     d = (a * a).sum(1)[:, None] - 2.0 * (a @ b.T) + (b * b).sum(1)[None, :]
-    return np.maximum(d, 0.0)
+    out: np.ndarray = np.maximum(d, 0.0)
+    return out
 
 
 @dataclass(frozen=True)
@@ -485,11 +486,11 @@ class TrackSeries:
     reversals: np.ndarray
 
 
-def _num(v) -> float:
+def _num(v: float | None) -> float:
     return float("nan") if v is None else float(v)
 
 
-def track_series(rows: list[dict]) -> TrackSeries:
+def track_series(rows: list[dict[str, Any]]) -> TrackSeries:
     """Arrays from the per-pulse rows (in pulse order)."""
     if not rows:
         raise InputError("no track rows: give the output of 'bladesonar analyze --track'")
@@ -523,7 +524,7 @@ def track_series(rows: list[dict]) -> TrackSeries:
     return TrackSeries(t, track, sd, matched, q, out, rel, conf, dirs, np.array(rev))
 
 
-def reversal_times(schedule) -> np.ndarray:
+def reversal_times(schedule: Any) -> np.ndarray:
     """Times (s) where a schedule starts turning against its previous moving direction
     (a stop in between does not hide a reversal): at the step of an unramped reversal, at
     the zero crossing of the signed rate inside a ramp through zero, and where the rate

@@ -59,7 +59,8 @@ def pulse_shape(kind: str, n_samples: int = 1) -> np.ndarray:
         if n < 1:
             raise ValueError(f"n_samples must be >= 1 for a hann pulse, got {n_samples!r}")
         p = np.sin(np.pi * np.arange(1, n + 1) / (n + 1)) ** 2
-        return p / p.max()
+        pulse: np.ndarray = p / p.max()
+        return pulse
     raise ValueError(f"pulse kind must be 'impulse' or 'hann', got {kind!r}")
 
 

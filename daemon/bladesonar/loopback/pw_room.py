@@ -217,7 +217,8 @@ class PwRoom(Room):
     def _alsa_error() -> type[Exception]:
         from ..service.alsa_audio import _alsaaudio
 
-        return _alsaaudio().ALSAAudioError
+        error: type[Exception] = _alsaaudio().ALSAAudioError   # the module is untyped (Any)
+        return error
 
     def _serve_connected(self, should_stop: Callable[[], bool],
                          max_seconds: float | None) -> None:
