@@ -75,6 +75,11 @@ class StaticRemover:
     of pulses (the daemon's warm-up; offline, the first window of the recording).
     """
 
+    #: (``normalise``) the gain reference of the pulses handed on, from RestHold's first
+    #: hold on: the estimate as it stood, adapting on, whatever the held estimate is.
+    #: None: the estimate itself
+    gain_ref: np.ndarray | None = None
+
     def __init__(self, alpha: float, mean: np.ndarray) -> None:
         self.alpha = float(alpha)
         self.mean = np.asarray(mean, dtype=np.float64).copy()
@@ -100,6 +105,7 @@ class StaticRemover:
         the daemon's CPU per block)."""
         c = copy.copy(self)
         c.mean = self.mean.copy()
+        c.gain_ref = None if self.gain_ref is None else self.gain_ref.copy()
         c.history = deque(self.history, maxlen=self.history.maxlen)
         return c
 
@@ -150,7 +156,23 @@ class StaticRemover:
         a, mean = self.alpha, self.mean
         res = np.empty_like(x)
         burst = np.zeros(len(x), bool)
+        ref = self.gain_ref if self.normalise else None
+        out = x if ref is None else x.copy()
         for i in range(len(x)):
+            if ref is not None:
+                # the pulse handed on (the short meter's, the noise level's) at its gain
+                # against an estimate that is never swapped: a held estimate from while
+                # the fan turned put every resting pulse at another gain (1.24 times for
+                # a loud fan) and the short meter took that step for motion for a whole
+                # window
+                rr = float(ref @ ref)
+                gr = float(x[i] @ ref) / rr if rr > 0 else 1.0
+                if gr > 0:
+                    out[i] /= gr
+                    ref += a * (out[i] - ref)
+                    r2 = float(ref @ ref)
+                    if r2 > 0:
+                        ref *= math.sqrt(rr / r2)
             # brought to the static estimate's gain first (an AGC's slow wander), as the
             # reference's pulses were
             mm = float(mean @ mean)
@@ -182,7 +204,7 @@ class StaticRemover:
             if index is not None and int(index[i]) >= self._next_copy:
                 self.history.append((int(index[i]), mean.copy()))
                 self._next_copy = int(index[i]) + SNAPSHOT_EVERY
-        return x, res, burst
+        return out, res, burst
 
     def _unburst_block(self, x: np.ndarray, gate: dev.BurstGate, index: np.ndarray | None
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -277,6 +299,8 @@ class RestHold:
             if d.direction == Direction.STOPPED and self._turning_k is not None:
                 held = [m for j, m in static.history if j <= self._turning_k]
                 if held:
+                    if static.normalise and static.gain_ref is None:
+                        static.gain_ref = static.mean.copy()
                     static.mean[:] = held[-1]
                     static.frozen = True
                     self._held_k = k
@@ -654,13 +678,14 @@ class PulseAnalyzer:
         to the block's start and run again over its pulses up to ``k`` (the same
         results), the change is made again, and the rest of the block is processed with
         it."""
-        changed_static = (self.static.mean.copy(), self.static.frozen)
+        changed_static = (self.static.mean.copy(), self.static.frozen,
+                          None if self.static.gain_ref is None else self.static.gain_ref.copy())
         restart = self._restart_at
         (self.static, self.slow, self.bursts, self._scale_due, self.scale, self.scale_corr,
          self._rescale, self.seen, self.dropped) = saved
         head = block.index <= k
         self._prepare(_rows_of(block, head))
-        self.static.mean[:], self.static.frozen = changed_static
+        self.static.mean[:], self.static.frozen, self.static.gain_ref = changed_static
         # a drop-out at the head's end marks the rest's first pulse
         self._carry_restart = {j for j in restart if j > k}
         return self.process(_rows_of(block, ~head), rows=rows)
