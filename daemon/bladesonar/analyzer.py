@@ -158,6 +158,7 @@ class StaticRemover:
         burst = np.zeros(len(x), bool)
         ref = self.gain_ref if self.normalise else None
         out = x if ref is None else x.copy()
+        rr = gr = 0.0
         for i in range(len(x)):
             if ref is not None:
                 # the pulse handed on (the short meter's, the noise level's) at its gain
@@ -169,10 +170,6 @@ class StaticRemover:
                 gr = float(x[i] @ ref) / rr if rr > 0 else 1.0
                 if gr > 0:
                     out[i] /= gr
-                    ref += a * (out[i] - ref)
-                    r2 = float(ref @ ref)
-                    if r2 > 0:
-                        ref *= math.sqrt(rr / r2)
             # brought to the static estimate's gain first (an AGC's slow wander), as the
             # reference's pulses were
             mm = float(mean @ mean)
@@ -190,6 +187,12 @@ class StaticRemover:
                 continue
             if g > 0:
                 self._note_gain(g)
+            if ref is not None and gr > 0 and rr > 0:
+                # (adapting as the estimate does, held or not, and its norm kept likewise)
+                ref += a * (out[i] - ref)
+                r2 = float(ref @ ref)
+                if r2 > 0:
+                    ref *= math.sqrt(rr / r2)
             if not self.frozen:
                 mean += a * res[i]
                 if g > 0 and self.normalise and mm > 0:
@@ -678,14 +681,18 @@ class PulseAnalyzer:
         to the block's start and run again over its pulses up to ``k`` (the same
         results), the change is made again, and the rest of the block is processed with
         it."""
-        changed_static = (self.static.mean.copy(), self.static.frozen,
-                          None if self.static.gain_ref is None else self.static.gain_ref.copy())
+        changed_static = (self.static.mean.copy(), self.static.frozen)
+        made_ref = self.static.gain_ref is not None
         restart = self._restart_at
         (self.static, self.slow, self.bursts, self._scale_due, self.scale, self.scale_corr,
          self._rescale, self.seen, self.dropped) = saved
         head = block.index <= k
         self._prepare(_rows_of(block, head))
-        self.static.mean[:], self.static.frozen, self.static.gain_ref = changed_static
+        if made_ref and self.static.gain_ref is None:
+            # a first hold's gain reference is the estimate after pulse k, as a pulse at a
+            # time has it (not the block's end, which the first pass had reached)
+            self.static.gain_ref = self.static.mean.copy()
+        self.static.mean[:], self.static.frozen = changed_static
         # a drop-out at the head's end marks the rest's first pulse
         self._carry_restart = {j for j in restart if j > k}
         return self.process(_rows_of(block, ~head), rows=rows)
