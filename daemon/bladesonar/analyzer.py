@@ -66,6 +66,12 @@ def new_aligner(cfg: Config, ref: Reference) -> PulseAligner:
     return PulseAligner(cfg.waveform.pri_samples, ref.gate, warmup=max(1, warm + 1))
 
 
+def _keep_norm(v: np.ndarray, norm2: float) -> None:
+    """Scale ``v`` in place back to the square norm ``norm2`` it had before a step."""
+    n2 = float(v @ v)
+    if n2 > 0:
+        v *= math.sqrt(norm2 / n2)
+
 
 class StaticRemover:
     """Running mean pulse (the static room) subtracted from each pulse, state in and out.
@@ -190,9 +196,7 @@ class StaticRemover:
             if ref is not None and gr > 0 and rr > 0:
                 # (adapting as the estimate does, held or not, and its norm kept likewise)
                 ref += a * (out[i] - ref)
-                r2 = float(ref @ ref)
-                if r2 > 0:
-                    ref *= math.sqrt(rr / r2)
+                _keep_norm(ref, rr)
             if not self.frozen:
                 mean += a * res[i]
                 if g > 0 and self.normalise and mm > 0:
@@ -201,9 +205,7 @@ class StaticRemover:
                     # estimate, the scale every pulse is brought to, grew without end:
                     # x2000 in 20 000 pulses of a loud fan near the sensor, until no
                     # pulse matched the reference table. Its norm stays where it was.
-                    m2 = float(mean @ mean)
-                    if m2 > 0:
-                        mean *= math.sqrt(mm / m2)
+                    _keep_norm(mean, mm)
             if index is not None and int(index[i]) >= self._next_copy:
                 self.history.append((int(index[i]), mean.copy()))
                 self._next_copy = int(index[i]) + SNAPSHOT_EVERY

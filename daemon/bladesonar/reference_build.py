@@ -405,9 +405,8 @@ def direction_contrast(feats: np.ndarray, phases: np.ndarray, bins: int, window:
         for s0 in range(0, len(f) - aliasing.MIRROR_MIN_PULSES + 1, window):
             ev = aliasing.mirror_evidence(
                 aliasing.distances(f[s0:s0 + window], fine), p[s0:s0 + window], fine)
-            z, sweep = ev.t, ev.sweep
-            if sweep >= aliasing.MIRROR_MIN_SWEEP and math.isfinite(z):
-                zs.append(z)
+            if ev.sweep >= aliasing.MIRROR_MIN_SWEEP and math.isfinite(ev.t):
+                zs.append(ev.t)
     if not zs:
         return None
     zs.sort()                 # the median by hand: np.median imports numpy.ma (the daemon)
