@@ -25,6 +25,7 @@ from bladesonar.sim.schedule import parse
 from bladesonar.sim.score import (
     Score,
     TruthEvent,
+    merge,
     score_events,
     score_gaps,
     score_state,
@@ -861,6 +862,31 @@ def test_unknown_stretches_in_the_middle_of_a_turn_are_counted():
     sc = Score(truth=[])
     score_gaps(sc, t, d, slow)
     assert [a for a, _ in sc.gaps] == [0.6]
+
+
+def test_unknown_states_are_split_by_what_the_fan_was_doing():
+    """Ten states, four of them unknown: one at rest, one at 0.05 Hz (a stop or a
+    reversal on its way through zero), one on a ramp at 0.3 Hz, one steady. The split
+    names each once, the known states nowhere, and its shares add up to the unknown
+    share; merged runs add their counts."""
+    sc = Score(truth=[])
+    states = [(0.0, "unknown", False), (0.0, "stopped", False), (0.05, "unknown", True),
+              (0.05, "same", True), (0.3, "unknown", True), (0.3, "same", True),
+              (-0.3, "unknown", False), (0.3, "same", False), (0.3, "same", False),
+              (0.3, "reversed", False)]
+    for i, (rate, d, ramping) in enumerate(states):
+        score_state(sc, float(i), rate, d, None, abs(rate) or None, ref_sign=1,
+                    ramping=ramping)
+    s = sc.summary()
+    assert s["unknown_by_situation"] == {"at_rest": 0.1, "slow": 0.1, "ramping": 0.1,
+                                         "steady": 0.1}
+    assert sum(s["unknown_by_situation"].values()) == pytest.approx(
+        s["state_share"]["unknown"])
+    assert (sc.right, sc.wrong) == (5, 1)
+    both = merge([sc, sc]).summary()
+    assert both["unknown_by_situation"] == s["unknown_by_situation"]
+    assert merge([sc, sc]).unknown_by == {"at_rest": 2, "slow": 2, "ramping": 2,
+                                          "steady": 2}
 
 
 @pytest.mark.parametrize("schedule, seed", [("ccw:0.45:10,ccw:0.25:10~2.5", 9),

@@ -37,6 +37,19 @@ from .schedule import Schedule
 #: |rate| at which a fan counts as turning for the truth events (Hz).
 MOVING_HZ = 0.15
 
+#: What the fan was doing at a scored state: at rest; turning under MOVING_HZ (a
+#: start, a stop or a reversal through zero); ramping at MOVING_HZ or more; steady.
+SITUATIONS = ("at_rest", "slow", "ramping", "steady")
+
+
+def situation(rate_hz: float, ramping: bool, moving_hz: float = MOVING_HZ) -> str:
+    """Which of SITUATIONS a true rate (and whether it is changing) falls in."""
+    if rate_hz == 0.0:
+        return "at_rest"
+    if abs(rate_hz) < moving_hz:
+        return "slow"
+    return "ramping" if ramping else "steady"
+
 
 @overload
 def true_time(stream_s: float, drift_ppm: float) -> float: ...
@@ -140,6 +153,8 @@ class Score:
     ramp_errors: list[float] = field(default_factory=list)   # the same, while ramping
     #: (start, seconds) of unknown stretches in the middle of a turn (score_gaps)
     gaps: list[tuple[float, float]] = field(default_factory=list)
+    #: unknown states by what the fan was doing (SITUATIONS): where the unknown time goes
+    unknown_by: dict[str, int] = field(default_factory=lambda: dict.fromkeys(SITUATIONS, 0))
 
     @property
     def states(self) -> int:
@@ -176,6 +191,8 @@ class Score:
                             "wrong": round(self.wrong / n, 4)},
             "rate_error": pct(self.rate_errors),
             "ramp_rate_error": pct(self.ramp_errors),
+            # shares of all states, summing to state_share's unknown
+            "unknown_by_situation": {k: round(v / n, 4) for k, v in self.unknown_by.items()},
             "unknown_while_turning": {
                 "n": len(self.gaps),
                 "over_0_5_s": sum(1 for _, d in self.gaps if d > 0.5),
@@ -200,6 +217,8 @@ def merge(scores: Iterable[Score]) -> Score:
         out.rate_errors += sc.rate_errors
         out.ramp_errors += sc.ramp_errors
         out.gaps += sc.gaps
+        for k, v in sc.unknown_by.items():
+            out.unknown_by[k] = out.unknown_by.get(k, 0) + v
     return out
 
 
@@ -254,6 +273,8 @@ def score_state(sc: Score, t_s: float, rate_hz: float, direction: str,
     claim = claims.get(direction)
     if claim is None:
         sc.unknown += 1
+        where = situation(rate_hz, ramping, moving_hz)
+        sc.unknown_by[where] = sc.unknown_by.get(where, 0) + 1
         return
     true = 0 if rate_hz == 0.0 else (1 if rate_hz > 0 else -1)
     if abs(rate_hz) >= moving_hz or rate_hz == 0.0:
