@@ -1114,6 +1114,29 @@ def test_in_a_doubtful_room_a_fan_seen_turning_throughout_does_not_reverse():
     assert fired == [("reversed", 380 + 16)]
 
 
+def test_in_a_doubtful_room_doubt_after_a_slow_fan_does_not_hide_its_reversal():
+    """Closed form (the spent held-out scene 1200008 at 750 s): 'same' slowing from
+    0.3 Hz at 0.15 Hz/s to 0.084 Hz (pulse 49, 1.44 s), 1.4 s with no answer, 0.4 s in
+    doubt at 0.156 Hz (a fan can reach that either way: through zero it needs
+    (0.084 + 0.156) / 0.3 = 0.8 s), 1 s in doubt at 0.71 Hz (an alias line: no fan gets
+    there from 0.084 Hz in 2-3 s at 0.3 Hz/s), then the other way from 0.27 Hz on a line
+    not checked against its mirror. Neither doubt shows the fan kept its way, so the
+    other way comes 2.85 s after the fan was last seen turning the known way, later than
+    the 1.18 s a fan needs through zero: a reversal at its 17th answer (pulse 146 + 16).
+    With the doubt read as the old way still turning, it was held as sudden for as long
+    as the line was not checked."""
+    def doubt(rate):
+        return Decision(Direction.UNKNOWN, None, None, rate, None, 0.3, "direction in doubt",
+                        turning=True, doubtful_room=True)
+    down = [_d("same", 0.3 - 0.15 * i / 34) for i in range(50)]
+    gap = [Decision(Direction.UNKNOWN, None, None, None, None, 0.0, "no match")] * 48
+    up = [Decision(Direction.REVERSED, None, None, 0.27 + 0.05 * i / 100, None, 0.9, "test",
+                   doubtful_room=True) for i in range(100)]
+    fired, published, tr = _walk(down + gap + [doubt(0.156)] * 14 + [doubt(0.71)] * 34 + up)
+    assert fired == [("reversed", 146 + 16)] and tr.known == Kind.REVERSED
+    assert published[-1] == "reversed"
+
+
 def test_weak_answers_at_the_same_speed_keep_a_fan_from_reversing_at_once():
     """Closed form: 'same' at 0.36 Hz, then 10 s (340 pulses) of answers too weak for a
     direction at 0.33-0.38 Hz (a track on the mirror line), then the other way at 0.36 Hz

@@ -393,11 +393,27 @@ class Transitions:
         if cand is not None or self.known not in WAY_KINDS:
             return
         if d.turning and d.doubtful_room and _rate(d) >= self._visible_hz:
-            self._see_known(t_s, _rate(d))
-            self._chain = self._known_seen
+            if self._chain is None or self._kept_its_way(t_s, _rate(d)):
+                self._see_known(t_s, _rate(d))
+                self._chain = self._known_seen
         elif self._chain is not None and _rate(d) >= self._visible_hz \
                 and abs(_rate(d) - self._chain[1]) <= CHAIN_AGREE * self._chain[1]:
             self._chain = (float(t_s), _rate(d))
+
+    def _kept_its_way(self, t_s: float, rate: float) -> bool:
+        """Whether a window in doubt at ``rate`` (Hz) shows the fan last seen on the
+        chain still turning the known way: it comes so soon that the other way at that
+        speed would be sudden (:meth:`_sudden_reversal`'s share of the time through zero
+        at ``max_reversal_hz_s``), at a speed the fan can have reached the known way. One
+        later could be either way (a doubtful room's reversal through zero: 0.16 Hz 1.4 s
+        after 0.08 Hz, then an alias line at 0.71 Hz, held the new way's answers for 15 s
+        as sudden)."""
+        vmax = self.settings.max_reversal_hz_s
+        if self._chain is None or not vmax > 0:
+            return True
+        t, old = self._chain
+        dt = max(float(t_s) - t, 0.0)
+        return dt < SUDDEN_SHARE * (old + rate) / vmax and abs(rate - old) <= vmax * dt + 1e-9
 
     def _note_last_turning(self, t_s: float, d: Decision, cand: Kind | None) -> None:
         """When the fan was last seen turning, which caps the wait for a reversal: only
