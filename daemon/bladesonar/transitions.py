@@ -393,7 +393,7 @@ class Transitions:
         if cand is not None or self.known not in WAY_KINDS:
             return
         if d.turning and d.doubtful_room and _rate(d) >= self._visible_hz:
-            if self._chain is None or self._kept_its_way(t_s, _rate(d)):
+            if self._kept_its_way(t_s, _rate(d)):
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen
         elif self._chain is not None and _rate(d) >= self._visible_hz \
