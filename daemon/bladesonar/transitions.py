@@ -153,6 +153,12 @@ class MachineState:
 #: at the old speed, a real reversal comes at least twice that time later, but a spurious
 #: lock of the old direction after zero can shift the chain by most of it.
 SUDDEN_SHARE = 0.5
+
+
+def _sudden_span(old_hz: float, new_hz: float, max_hz_s: float) -> float:
+    """Seconds within which a fan at ``old_hz`` seen at ``new_hz`` the other way is
+    sudden: ``SUDDEN_SHARE`` of the time down through zero and up at ``max_hz_s``."""
+    return SUDDEN_SHARE * (old_hz + new_hz) / max_hz_s
 #: How close (a share of it) an answer with no direction must come to the speed the fan
 #: was last seen turning at to show that it still turns (:meth:`Transitions._keep_chain`):
 #: a fan slowing to reverse changes speed by less within the few tenths of a second
@@ -277,7 +283,7 @@ class Transitions:
             return d
         if rate is None or not d.turning or rate > (1.0 + CHAIN_AGREE) * answered:
             return d
-        if t - self._carry_seen > SUDDEN_SHARE * (answered + rate) / st.max_reversal_hz_s:
+        if t - self._carry_seen > _sudden_span(answered, rate, st.max_reversal_hz_s):
             self._carry_from = None
             return d
         self._carry_seen = t
@@ -412,8 +418,8 @@ class Transitions:
         if self._chain is None or not vmax > 0:
             return True
         t, old = self._chain
-        dt = max(float(t_s) - t, 0.0)
-        return dt < SUDDEN_SHARE * (old + rate) / vmax and abs(rate - old) <= vmax * dt + 1e-9
+        return float(t_s) < t + _sudden_span(old, rate, vmax) \
+            and abs(rate - old) <= vmax * max(float(t_s) - t, 0.0) + 1e-9
 
     def _note_last_turning(self, t_s: float, d: Decision, cand: Kind | None) -> None:
         """When the fan was last seen turning, which caps the wait for a reversal: only
@@ -542,7 +548,7 @@ class Transitions:
                 or self._chain is None or not st.max_reversal_hz_s > 0:
             return False
         t, old = self._chain
-        return float(t_s) < t + SUDDEN_SHARE * (old + rate) / st.max_reversal_hz_s
+        return float(t_s) < t + _sudden_span(old, rate, st.max_reversal_hz_s)
 
     def _soonest_reversal(self, t_s: float, rate: float) -> float | None:
         """When a fan last seen turning the known way could be seen turning the other

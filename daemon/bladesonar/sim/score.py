@@ -218,7 +218,7 @@ def merge(scores: Iterable[Score]) -> Score:
         out.ramp_errors += sc.ramp_errors
         out.gaps += sc.gaps
         for k, v in sc.unknown_by.items():
-            out.unknown_by[k] = out.unknown_by.get(k, 0) + v
+            out.unknown_by[k] += v
     return out
 
 
@@ -273,8 +273,7 @@ def score_state(sc: Score, t_s: float, rate_hz: float, direction: str,
     claim = claims.get(direction)
     if claim is None:
         sc.unknown += 1
-        where = situation(rate_hz, ramping, moving_hz)
-        sc.unknown_by[where] = sc.unknown_by.get(where, 0) + 1
+        sc.unknown_by[situation(rate_hz, ramping, moving_hz)] += 1
         return
     true = 0 if rate_hz == 0.0 else (1 if rate_hz > 0 else -1)
     if abs(rate_hz) >= moving_hz or rate_hz == 0.0:
