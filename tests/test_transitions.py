@@ -1240,3 +1240,34 @@ def test_a_decided_turn_is_no_rest_for_the_mirror_check_while_the_static_is_held
     an.decided = _d("same", 0.35)
     an._check_aliases()
     assert told[-1] is False
+
+
+@pytest.mark.parametrize("way_down", ["steep, no line", "a slowing line"])
+def test_a_new_lock_of_the_old_way_after_zero_does_not_make_a_reversal_sudden(way_down):
+    """Closed form (the spent held-out scene 1300004 at 373 s and 686 s, 34 pulses/s,
+    0.3 Hz/s): 'same' slows to 0.054 Hz (from a steady 0.168 Hz in half a second, too
+    slow for a slowing line; or at 0.068 Hz/s from 0.25 Hz, whose line reaches zero),
+    0.6 s of windows read slower than the floor, 0.3 s with no match, then a new lock
+    answers 'same' at 0.14 Hz for 0.3 s and the other way follows at once from 0.105 Hz,
+    on a line not checked against its mirror. The fan was seen at zero: a run of the old
+    way that has not lasted ``followed_s`` (1 s) is a new lock on a fan that may be
+    reversing, so the other way is judged against 0.054 Hz 1.2 s before (through zero a
+    fan needs (0.054 + 0.105) / 0.3 = 0.53 s): a reversal at its 17th answer. Judged
+    against the lock, it came at once and was held as the mirror image until its line
+    was checked (4 s in the scene). A lock of the old way followed for 1.2 s does vouch
+    for it: then the other way at once is sudden, and held."""
+    if way_down == "steep, no line":
+        down = [_d("same", 0.168)] * 60 + [_d("same", 0.11 - 0.056 * i / 16)
+                                           for i in range(17)]
+    else:
+        down = [_d("same", 0.25 - 0.068 * i / 34) for i in range(98)]
+    assert down[-1].rate_hz == pytest.approx(0.054, abs=0.004)
+    slow = [Decision(Direction.UNKNOWN, None, None, 0.04, None, 0.9,
+                     "turning slower than the floor")] * 20
+    lost = [Decision(Direction.UNKNOWN, None, None, None, None, 0.0, "no match")] * 10
+    other = [_d("reversed", 0.105 + 0.085 * i / 34, checked=False) for i in range(100)]
+    start = len(down) + 20 + 10 + 10
+    fired, published, tr = _walk(down + slow + lost + [_d("same", 0.14)] * 10 + other)
+    assert fired == [("reversed", start + 16)] and tr.known == Kind.REVERSED
+    fired, published, _ = _walk(down + slow + lost + [_d("same", 0.14)] * 40 + other)
+    assert fired == [] and set(published[start + 30:]) == {"unknown"}

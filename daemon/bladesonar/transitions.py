@@ -207,6 +207,8 @@ class Transitions:
         self._carry_from: float | None = None   # the rate (Hz) the known direction
                                              # was last answered at (carry)
         self._carry_seen = -math.inf         # the last answered or carried window (s)
+        self._read_slow = False              # a window since the chain's last answer read
+                                             # the fan slower than the floor
         self._in_doubt = False               # the last step's decision had no kind
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
@@ -232,6 +234,8 @@ class Transitions:
         held = self._lone_answer(d, cand, prev)
         if held is not None:
             return self._held(d, held), []
+        if cand is None and d.rate_hz is not None and d.rate_hz < self.settings.rate_floor_hz:
+            self._read_slow = True
         self._keep_chain(t_s, d, cand)
         self._watch_slowing(t_s, d, cand)
         self._note_last_turning(t_s, d, cand)
@@ -402,9 +406,11 @@ class Transitions:
             if self._kept_its_way(t_s, _rate(d)):
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen
+                self._read_slow = False
         elif self._chain is not None and _rate(d) >= self._visible_hz \
                 and abs(_rate(d) - self._chain[1]) <= CHAIN_AGREE * self._chain[1]:
             self._chain = (float(t_s), _rate(d))
+            self._read_slow = False
 
     def _kept_its_way(self, t_s: float, rate: float) -> bool:
         """Whether a window in doubt at ``rate`` (Hz) shows the fan last seen on the
@@ -437,11 +443,30 @@ class Transitions:
         if cand in TURNING_KINDS:
             if cand == self.known:
                 self._known_checked = self._known_checked or d.mirror_checked
+                if self._new_lock_after_zero(t_s, cand):
+                    return
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen  # (bounded from rest like it)
+                self._read_slow = False
         elif cand == Kind.STOPPED and self.known in TURNING_KINDS:
             self._see_known(t_s, 0.0)
             self._chain = None
+
+    def _new_lock_after_zero(self, t_s: float, kind: Kind) -> bool:
+        """Whether an answer of the known ``kind`` belongs to a run not yet followed for
+        ``followed_s`` that began after the fan was seen at or near zero: its slowing
+        line below the floor, or its last answer under the rate a new direction needs
+        and a window since read slower than the floor. Such a run is a new lock on a fan
+        that may be reversing (the old way's pattern fits a slow fan either way for a
+        few tenths of a second); it neither renews the chain nor the speed the fan was
+        last seen at, so the other way's first answers are judged against the fan's
+        way down, not against it."""
+        if t_s - self._run_from >= self.settings.followed_s:
+            return False
+        if self._below_floor(t_s, kind):
+            return True
+        return self._read_slow and self._chain is not None \
+            and self._chain[1] < self._visible_hz
 
     def _note_candidate(self, t_s: float, d: Decision, cand: Kind | None,
                         prev: Kind | None) -> None:
