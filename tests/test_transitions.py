@@ -1271,3 +1271,20 @@ def test_a_new_lock_of_the_old_way_after_zero_does_not_make_a_reversal_sudden(wa
     assert fired == [("reversed", start + 16)] and tr.known == Kind.REVERSED
     fired, published, _ = _walk(down + slow + lost + [_d("same", 0.14)] * 40 + other)
     assert fired == [] and set(published[start + 30:]) == {"unknown"}
+
+
+def test_a_mirror_lock_just_after_a_start_is_still_sudden():
+    """Closed form, 34 pulses/s, 0.3 Hz/s: 'same' slowing at 0.068 Hz/s from 0.25 Hz to
+    0.06 Hz (a slowing line that reaches zero), 4 s at rest (a stop), then 'same' at
+    0.12 Hz (a slow start, confirmed at its 17th answer; too slow to forget the line),
+    five more, and the other way at once at 0.12 Hz on a line not checked against its
+    mirror: a mirror lock, sudden against the start's answers, never a reversal. The
+    spin-down's line is still below the floor then, but after a stop there is no chain
+    for a new lock to move: the start's answers make one."""
+    down = [_d("same", 0.25 - 0.068 * i / 34) for i in range(96)]
+    rest = [_d("stopped")] * 136
+    start = [_d("same", 0.12)] * 22
+    fired, published, tr = _walk(down + rest + start
+                                 + [_d("reversed", 0.12, checked=False)] * 100)
+    assert [k for k, _ in fired] == ["stopped", "started"] and tr.known == Kind.SAME
+    assert set(published[96 + 136 + 22:]) == {"unknown"}

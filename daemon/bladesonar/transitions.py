@@ -460,13 +460,12 @@ class Transitions:
         that may be reversing (the old way's pattern fits a slow fan either way for a
         few tenths of a second); it neither renews the chain nor the speed the fan was
         last seen at, so the other way's first answers are judged against the fan's
-        way down, not against it."""
-        if t_s - self._run_from >= self.settings.followed_s:
+        way down, not against it. With no chain (after an answer of rest) there is
+        nothing to move: a start's answers make one."""
+        if self._chain is None or t_s - self._run_from >= self.settings.followed_s:
             return False
-        if self._below_floor(t_s, kind):
-            return True
-        return self._read_slow and self._chain is not None \
-            and self._chain[1] < self._visible_hz
+        return self._below_floor(t_s, kind) \
+            or (self._read_slow and self._chain[1] < self._visible_hz)
 
     def _note_candidate(self, t_s: float, d: Decision, cand: Kind | None,
                         prev: Kind | None) -> None:
