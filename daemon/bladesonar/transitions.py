@@ -207,8 +207,8 @@ class Transitions:
         self._carry_from: float | None = None   # the rate (Hz) the known direction
                                              # was last answered at (carry)
         self._carry_seen = -math.inf         # the last answered or carried window (s)
-        self._read_slow = False              # a window since the chain's last answer read
-                                             # the fan slower than the floor
+        self._read_slow_t = -math.inf        # the last window that read the fan slower
+                                             # than the floor (s)
         self._in_doubt = False               # the last step's decision had no kind
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
@@ -235,7 +235,7 @@ class Transitions:
         if held is not None:
             return self._held(d, held), []
         if cand is None and d.rate_hz is not None and d.rate_hz < self.settings.rate_floor_hz:
-            self._read_slow = True
+            self._read_slow_t = float(t_s)
         self._keep_chain(t_s, d, cand)
         self._watch_slowing(t_s, d, cand)
         self._note_last_turning(t_s, d, cand)
@@ -406,11 +406,9 @@ class Transitions:
             if self._kept_its_way(t_s, _rate(d)):
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen
-                self._read_slow = False
         elif self._chain is not None and _rate(d) >= self._visible_hz \
                 and abs(_rate(d) - self._chain[1]) <= CHAIN_AGREE * self._chain[1]:
             self._chain = (float(t_s), _rate(d))
-            self._read_slow = False
 
     def _kept_its_way(self, t_s: float, rate: float) -> bool:
         """Whether a window in doubt at ``rate`` (Hz) shows the fan last seen on the
@@ -447,7 +445,6 @@ class Transitions:
                     return
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen  # (bounded from rest like it)
-                self._read_slow = False
         elif cand == Kind.STOPPED and self.known in TURNING_KINDS:
             self._see_known(t_s, 0.0)
             self._chain = None
@@ -465,7 +462,7 @@ class Transitions:
         if self._chain is None or t_s - self._run_from >= self.settings.followed_s:
             return False
         return self._below_floor(t_s, kind) \
-            or (self._read_slow and self._chain[1] < self._visible_hz)
+            or (self._read_slow_t > self._chain[0] and self._chain[1] < self._visible_hz)
 
     def _note_candidate(self, t_s: float, d: Decision, cand: Kind | None,
                         prev: Kind | None) -> None:
