@@ -26,7 +26,7 @@ from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import Schedule
 from loopback import ROOT, SCENE, bladesonar_cmd
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
 
 @pytest.fixture(scope="module")
