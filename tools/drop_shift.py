@@ -27,6 +27,9 @@ from bladesonar.reference_build import Reference, build_reference
 from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import Schedule, parse
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from ramp_trace import seeds_of  # noqa: E402  (tools/ramp_trace.py: "1-4,7")
+
 ROOT = Path(__file__).resolve().parents[1]
 SCHEDULE = "ccw:0.45:12,cw:0.45:600~3"          # tests/test_daemon_pipewire.py's
 
@@ -43,14 +46,6 @@ def reversed_at(x: np.ndarray, cfg: config.Config, ref: Reference) -> int | None
             if e.kind.value == "reversed":
                 return e.pulse
     return None
-
-
-def seeds_of(spec: str) -> list[int]:
-    out: list[int] = []
-    for part in spec.split(","):
-        a, _, b = part.partition("-")
-        out += list(range(int(a), int(b or a) + 1))
-    return out
 
 
 def main(argv: list[str]) -> int:
