@@ -27,16 +27,19 @@ pytestmark = [pytest.mark.slow, pytest.mark.alsa, pytest.mark.pipewire]
 
 RATE = 0.45                 # Hz, the fan
 REVERSE_AT = 12.0           # s into each session: the fan reverses
-#: A reversal through zero over 3 s, as a fan makes it. The two paths get the same noise
+#: A reversal through zero over 6 s (0.15 Hz/s, the steepest ramp the tracker is built to
+#: follow: tracking.max_ramp_hz_s), as a fan makes it. The two paths get the same noise
 #: per PRI (loopback/room.py), so the moment the rate leaves "unknown" on the ramp, which
-#: depends on the noise draw (1.37-2.33 s over draws, docs/audio.md), is the same draw in
-#: both, and each path records the same pulses for its reference (from the first pulse
-#: heard, whatever the latency: service/recorder.py). A step reversal, which no fan
-#: makes, now waits for its new line to beat its mirror image (docs/dynamics.md, "A
-#: sudden reversal"), whose check every 8 pulses put the 44.1 kHz path 0.34 s behind the
-#: ALSA loopback's.
-SCHEDULE = f"ccw:{RATE}:{REVERSE_AT:g},cw:{RATE}:600~3"
-RUN_S = 20.0
+#: depends on the noise draw, is the same draw in both, and each path records the same
+#: pulses for its reference (from the first pulse heard, whatever the latency:
+#: service/recorder.py). What the paths cannot share is the pulses a latency step costs:
+#: on a ramp of 0.3 Hz/s (3 s, this module's schedule until 2026-11-29) five pulses lost
+#: moved the reversal by more than 0.3 s in 7 of 30 noise draws, on this one in none of
+#: 36 (tools/drop_shift.py, docs/audio.md). A step reversal, which no fan makes, waits
+#: for its new line to beat its mirror image (docs/dynamics.md, "A sudden reversal"),
+#: whose check every 8 pulses put the 44.1 kHz path 0.34 s behind the ALSA loopback's.
+SCHEDULE = f"ccw:{RATE}:{REVERSE_AT:g},cw:{RATE}:600~6"
+RUN_S = 25.0
 #: The issue's bar: the reversal confirmed within this of the ALSA loopback's (s).
 DELAY_BOUND_S = 0.3
 NOISE = 1e-4                # white noise on the capture, full scale 1
@@ -424,11 +427,12 @@ def test_a_quantum_change_mid_run_changes_nothing_a_subscriber_sees(graph48, als
     assert st["dropped_pulses"] <= jumps, st
     off = off_alsa(run, graph48.last_session(), alsa48)
     # the pulses dropped at the latency steps move no later decision (the daemon decides
-    # on pulse numbers; counted over valid pulses, they moved every one, +0.42 s here):
-    # +0.09 to +0.17 s in 12 module runs (the last four with the room's quantum locked:
-    # +0.11 to +0.17 s). Open: once, 6 latency steps that dropped 5 pulses confirmed it
-    # 0.33 s *early* (the meters and the track without those pulses on the ramp: another
-    # noise draw, docs/audio.md)
+    # on pulse numbers; counted over valid pulses, they moved every one, +0.42 s here),
+    # but the track without them sees another noise draw: on the 3 s ramp this module
+    # had until 2026-11-29, +0.09 to +0.17 s in 12 module runs and then 0.33 s early and
+    # +0.43 s late; on the 6 s ramp (0.15 Hz/s) +0.18 and +0.17 s in two (docs/audio.md). Five
+    # lost pulses still move a reversal by 4-8 pulses in 3 draws of 36 offline
+    # (tools/drop_shift.py), so it stays an expected failure beyond the bound
     open_delay(off, "a quantum change")
 
 

@@ -5,7 +5,8 @@ change costs a pulse per latency step, and the comparison with the ALSA loopback
   .venv/bin/python tools/drop_shift.py --seeds 3-8 --at 6,10,11.5,12.5,13.5 --lost 5
 
 The daemon's path (``LiveAnalyzer``, blocks of 8) on the PipeWire tests' schedule (the
-paper room, 0.45 Hz ccw, reversed through zero over 3 s from 12 s; 20 dB), each seed once
+paper room, 0.45 Hz ccw, reversed through zero over 3 s from 12 s, 0.3 Hz/s; 20 dB; or
+``--schedule``), each seed once
 intact and once per time in ``--at`` with ``--lost`` pulses silenced from there (the
 aligner marks them dropped, as it does the pulse a latency step costs). Printed per
 seed: the pulse of the intact run's ``reversed`` and the shift of each silenced run's, in
@@ -53,6 +54,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--seeds", default="1-4")
     p.add_argument("--at", default="6,10,12.5", help="times (s) the pulses are lost")
     p.add_argument("--lost", type=int, default=2, help="pulses lost each time")
+    p.add_argument("--schedule", default=SCHEDULE,
+                   help=f"the fan (simulate's grammar; default the tests' {SCHEDULE})")
     args = p.parse_args(argv)
     cfg = config.Config()
     scene = load_scene(ROOT / "config" / "scenes" / "paper-room.yaml")
@@ -61,7 +64,7 @@ def main(argv: list[str]) -> int:
                      seed=99)
     ref = build_reference(xr, cfg, "ccw")
     for seed in seeds_of(args.seeds):
-        x, _ = simulate(scene, cfg, 20.0, schedule=parse(SCHEDULE), snr_db=20.0, seed=seed)
+        x, _ = simulate(scene, cfg, 20.0, schedule=parse(args.schedule), snr_db=20.0, seed=seed)
         base = reversed_at(x, cfg, ref)
         shifts = []
         for t in (float(v) for v in args.at.split(",")):
