@@ -4,9 +4,10 @@ change costs a pulse per latency step, and the comparison with the ALSA loopback
 
   .venv/bin/python tools/drop_shift.py --seeds 3-8 --at 6,10,11.5,12.5,13.5 --lost 5
 
-The daemon's path (``LiveAnalyzer``, blocks of 8) on the PipeWire tests' schedule (the
-paper room, 0.45 Hz ccw, reversed through zero over 3 s from 12 s, 0.3 Hz/s; 20 dB; or
-``--schedule``), each seed once
+The daemon's path (``LiveAnalyzer``, blocks of 8) on the paper room at 20 dB, the fan
+at 0.45 Hz ccw reversed through zero over 3 s from 12 s (0.3 Hz/s: the PipeWire tests'
+schedule until 2026-11-29; theirs now, over 6 s: ``--schedule
+"ccw:0.45:12,cw:0.45:600~6"``), each seed once
 intact and once per time in ``--at`` with ``--lost`` pulses silenced from there (the
 aligner marks them dropped, as it does the pulse a latency step costs). Printed per
 seed: the pulse of the intact run's ``reversed`` and the shift of each silenced run's, in
@@ -32,7 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from ramp_trace import seeds_of  # noqa: E402  (tools/ramp_trace.py: "1-4,7")
 
 ROOT = Path(__file__).resolve().parents[1]
-SCHEDULE = "ccw:0.45:12,cw:0.45:600~3"          # tests/test_daemon_pipewire.py's
+#: tests/test_daemon_pipewire.py's schedule until 2026-11-29 (its reversal now takes 6 s)
+SCHEDULE = "ccw:0.45:12,cw:0.45:600~3"
 
 
 def reversed_at(x: np.ndarray, cfg: config.Config, ref: Reference) -> int | None:
@@ -55,7 +57,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--at", default="6,10,12.5", help="times (s) the pulses are lost")
     p.add_argument("--lost", type=int, default=2, help="pulses lost each time")
     p.add_argument("--schedule", default=SCHEDULE,
-                   help=f"the fan (simulate's grammar; default the tests' {SCHEDULE})")
+                   help=f"the fan (simulate's grammar; default {SCHEDULE})")
     args = p.parse_args(argv)
     cfg = config.Config()
     scene = load_scene(ROOT / "config" / "scenes" / "paper-room.yaml")
