@@ -457,10 +457,14 @@ def test_a_reversal_waits_until_a_fan_could_have_made_it():
 
 def test_the_old_direction_is_bounded_by_rest_and_by_how_fast_a_fan_speeds_up():
     """Closed form, 10 answers/s, 0.3 Hz/s: 'same' at 0.4 Hz, then at rest ('stopped')
-    until 5.0 s, then a lock claiming 'same' at 0.26 Hz at 5.1 and 5.2 s (a fan at rest
-    0.1 s before can be at 0.03 Hz, at 0.06 Hz 0.2 s after), then 'reversed' at 0.2 Hz:
-    possible from 5.2 + (0.06 + 0.2) / 0.3 = 6.067 s, not from the 0.26 Hz claimed
-    (6.733 s); the count (5 answers) is met by 5.7 s."""
+    until 5.0 s, then a lock claiming 'same' at 0.26 Hz at 5.1 and 5.2 s, then
+    'reversed' at 0.2 Hz. The two 'same' answers are a run not yet followed for
+    ``followed_s`` (1 s) after rest was answered: a new lock on a fan that may be
+    reversing, so they do not move where the fan was last seen (at rest at 5.0 s), and
+    'reversed' at 0.2 Hz is possible from 5.0 + 0.2 / 0.3 = 5.667 s; the count (5
+    answers from 5.3 s) is met by 5.7 s. (Counted, the lock would put the fan at
+    0.06 Hz at 5.2 s, bounded from rest, and hold the reversal to 6.067 s: held-out
+    1400010 waited 3.6 s so, the other way's answers judged a sudden mirror image.)"""
     tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=10.0,
                                         max_reversal_hz_s=0.3), 10.0)
     seq = [("same", 0.4)] * 40 + [("stopped", 0.0)] * 11 + [("same", 0.26)] * 2 + \
@@ -468,7 +472,23 @@ def test_the_old_direction_is_bounded_by_rest_and_by_how_fast_a_fan_speeds_up():
     fired = []
     for i, (d, r) in enumerate(seq):
         fired += [(e.kind, round(e.t_s, 3)) for e in tr.step(i * 0.1, i, _d(d, r))[1]]
-    assert fired == [("reversed", 6.1)]
+    assert fired == [("reversed", 5.7)]
+
+
+def test_a_followed_run_after_rest_is_bounded_by_how_fast_a_fan_speeds_up():
+    """Closed form, 10 answers/s, 0.3 Hz/s, no cap on the wait (``reversal_hold_s``
+    10 s): 'same' at 0.4 Hz, at rest until 5.0 s, then 'same' at 0.4 Hz from 5.1 to
+    6.3 s, followed for more than ``followed_s``: it counts, bounded by how fast a fan
+    at rest at 5.0 s can speed up (0.39 Hz at 6.3 s), and 'reversed' at 0.2 Hz from
+    6.4 s is possible from 6.3 + (0.39 + 0.2) / 0.3 = 8.267 s, fired at 8.3 s."""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=10.0,
+                                        max_reversal_hz_s=0.3, reversal_hold_s=10.0), 10.0)
+    seq = [("same", 0.4)] * 40 + [("stopped", 0.0)] * 11 + [("same", 0.4)] * 13 + \
+        [("reversed", 0.2)] * 30
+    fired = []
+    for i, (d, r) in enumerate(seq):
+        fired += [(e.kind, round(e.t_s, 3)) for e in tr.step(i * 0.1, i, _d(d, r))[1]]
+    assert fired == [("reversed", 8.3)]
 
 
 @pytest.mark.parametrize("other, first", [

@@ -204,6 +204,8 @@ class Transitions:
         self._known_seen: tuple[float, float] | None = None   # (t, rate), known direction
         self._known_checked = False          # an answer of the known direction was on a
                                              # line that beat its mirror image
+        self._rest_since_known = False       # rest answered after the known direction's
+                                             # last answer (the chain ended there)
         self._carry_from: float | None = None   # the rate (Hz) the known direction
                                              # was last answered at (carry)
         self._carry_seen = -math.inf         # the last answered or carried window (s)
@@ -445,22 +447,27 @@ class Transitions:
                     return
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen  # (bounded from rest like it)
+                self._rest_since_known = False
         elif cand == Kind.STOPPED and self.known in TURNING_KINDS:
             self._see_known(t_s, 0.0)
             self._chain = None
+            self._rest_since_known = True
 
     def _new_lock_after_zero(self, t_s: float, kind: Kind) -> bool:
         """Whether an answer of the known ``kind`` belongs to a run not yet followed for
         ``followed_s`` that began after the fan was seen at or near zero: its slowing
         line below the floor, or its last answer under the rate a new direction needs
-        and a window since read slower than the floor. Such a run is a new lock on a fan
-        that may be reversing (the old way's pattern fits a slow fan either way for a
-        few tenths of a second); it neither renews the chain nor the speed the fan was
-        last seen at, so the other way's first answers are judged against the fan's
-        way down, not against it. With no chain (after an answer of rest) there is
-        nothing to move: a start's answers make one."""
-        if self._chain is None or t_s - self._run_from >= self.settings.followed_s:
+        and a window since read slower than the floor, or rest answered since its last
+        answer (a stop not yet confirmed). Such a run is a new lock on a fan that may be
+        reversing (the old way's pattern fits a slow fan either way for a few tenths of
+        a second); it neither renews the chain nor the speed the fan was last seen at,
+        so the other way's first answers are judged against the fan's way down (or its
+        rest), not against it. After a confirmed stop there is no known direction to
+        guard: a start's answers make the chain."""
+        if t_s - self._run_from >= self.settings.followed_s:
             return False
+        if self._chain is None:
+            return self._rest_since_known
         return self._below_floor(t_s, kind) \
             or (self._read_slow_t > self._chain[0] and self._chain[1] < self._visible_hz)
 
@@ -502,6 +509,7 @@ class Transitions:
         corrected = self._corrects(cand)
         self.known = cand
         self._known_checked = d.mirror_checked
+        self._rest_since_known = False
         self._known_seen = (float(t_s), _rate(d)) if cand != Kind.STOPPED else None
         if corrected:
             return replace(d, reason=f"direction corrected: the {before} answered before "
