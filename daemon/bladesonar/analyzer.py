@@ -85,6 +85,9 @@ class StaticRemover:
     #: hold on: the estimate as it stood, adapting on, whatever the held estimate is.
     #: None: the estimate itself
     gain_ref: np.ndarray | None = None
+    #: hold the estimate, the fan still turning (a slow fan: see RestHold); unlike
+    #: ``frozen`` it says nothing of rest
+    held: bool = False
 
     def __init__(self, alpha: float, mean: np.ndarray) -> None:
         self.alpha = float(alpha)
@@ -197,7 +200,7 @@ class StaticRemover:
                 # (adapting as the estimate does, held or not, and its norm kept likewise)
                 ref += a * (out[i] - ref)
                 _keep_norm(ref, rr)
-            if not self.frozen:
+            if not (self.frozen or self.held):
                 mean += a * res[i]
                 if g > 0 and self.normalise and mm > 0:
                     # a scaled pulse's residual is orthogonal to the estimate (least
@@ -235,7 +238,7 @@ class StaticRemover:
             for i in range(c0, c1):
                 j = i - c0
                 np.subtract(x[i], means[j], out=res[i])
-                if self.frozen:
+                if self.frozen or self.held:
                     means[j + 1] = means[j]
                 else:
                     np.multiply(res[i], a, out=step)        # mean += a * res, as above
@@ -284,6 +287,14 @@ class RestHold:
     doubt (a weak answer in the old direction from a spurious line near rest does not
     count), but no longer than ``max_pulses`` (HOLD_S): over a long rest the room itself
     drifts, and an old estimate would leave that drift in every residual.
+
+    A fan seen turning slower than ``turning_hz`` after it was seen at that rate (the
+    end of a spin-down, a reversal through zero) lingers near one angle for seconds, and
+    the estimate takes in its echo the same way: after the zero of a slow reversal the
+    ghost held the track at rest while the fan sped up the other way, for 2-3 s. So the
+    estimate also stops adapting from the first decision that reads the fan under
+    ``turning_hz`` (``StaticRemover.held``, which, unlike a rest's hold, tells the
+    analysis nothing of rest), and adapts again on the same release.
     """
 
     def __init__(self, turning_hz: float, max_pulses: float) -> None:
@@ -292,10 +303,13 @@ class RestHold:
         #: the last pulse at which the fan was seen turning at ``turning_hz`` or more
         self._turning_k: int | None = None
         self._held_k = 0                     # the pulse the hold began
+        #: the last change put another estimate in (a rest's hold), rather than only
+        #: stopping or resuming its adapting
+        self.replaced = False
 
     def step(self, k: int, state: Decision, d: Decision, static: StaticRemover) -> bool:
         """After the decision ``d`` at pulse ``k`` and the state published from it: hold
-        or release ``static``. True when its estimate changed."""
+        or release ``static``. True when its estimate, or whether it adapts, changed."""
         turning = (state.direction in WAYS or state.turning) \
             and (state.rate_hz or 0.0) >= self.turning_hz
         if turning:
@@ -307,12 +321,26 @@ class RestHold:
                     if static.normalise and static.gain_ref is None:
                         static.gain_ref = static.mean.copy()
                     static.mean[:] = held[-1]
-                    static.frozen = True
+                    static.frozen, static.held = True, False
                     self._held_k = k
+                    self.replaced = True
                     return True
+            slow = d.direction != Direction.STOPPED and d.rate_hz is not None \
+                and math.isfinite(d.rate_hz) and d.rate_hz < self.turning_hz
+            if not static.held and slow and self._turning_k is not None:
+                static.held = True
+                self._held_k = k
+                self.replaced = False
+                return True
+            if static.held and (turning or k - self._held_k > self.max_pulses):
+                static.held = False
+                self._turning_k = None if not turning else k
+                self.replaced = False
+                return True
         elif turning or k - self._held_k > self.max_pulses:
             static.frozen = False
             self._turning_k = None          # not held again before the fan turns again
+            self.replaced = False
             return True
         return False
 
@@ -683,7 +711,7 @@ class PulseAnalyzer:
         to the block's start and run again over its pulses up to ``k`` (the same
         results), the change is made again, and the rest of the block is processed with
         it."""
-        changed_static = (self.static.mean.copy(), self.static.frozen)
+        changed_static = (self.static.mean.copy(), self.static.frozen, self.static.held)
         made_ref = self.static.gain_ref is not None
         restart = self._restart_at
         (self.static, self.slow, self.bursts, self._scale_due, self.scale, self.scale_corr,
@@ -694,7 +722,11 @@ class PulseAnalyzer:
             # a first hold's gain reference is the estimate after pulse k, as a pulse at a
             # time has it (not the block's end, which the first pass had reached)
             self.static.gain_ref = self.static.mean.copy()
-        self.static.mean[:], self.static.frozen = changed_static
+        if self.rest_hold.replaced:
+            self.static.mean[:] = changed_static[0]
+        # (otherwise the estimate after pulse k stands: the first pass had adapted it
+        # over the whole block, and only its adapting changed at k)
+        self.static.frozen, self.static.held = changed_static[1:]
         # a drop-out at the head's end marks the rest's first pulse
         self._carry_restart = {j for j in restart if j > k}
         return self.process(_rows_of(block, ~head), rows=rows)
