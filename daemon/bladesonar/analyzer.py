@@ -294,12 +294,21 @@ class RestHold:
     ghost held the track at rest while the fan sped up the other way, for 2-3 s. So the
     estimate also stops adapting from the first decision that reads the fan under
     ``turning_hz`` (``StaticRemover.held``, which, unlike a rest's hold, tells the
-    analysis nothing of rest), and adapts again on the same release.
+    analysis nothing of rest), and adapts again on the same release, or after
+    ``slow_pulses``: the longest a fan driven through zero stays under ``turning_hz``
+    (down and up again at ``min_spinup_hz_s``, 6 s): the ghost is a reversal's, and a
+    fan that stays slow, or a fast one whose decisions read a slow line where its
+    track keeps losing it, should not keep an estimate that no longer follows the room
+    (the aligner's error under drift, a device's gain) for up to ``max_pulses``.
     """
 
-    def __init__(self, turning_hz: float, max_pulses: float) -> None:
+    slow_pulses: float = math.inf
+
+    def __init__(self, turning_hz: float, max_pulses: float, slow_pulses: float = math.inf
+                 ) -> None:
         self.turning_hz = turning_hz
         self.max_pulses = max_pulses
+        self.slow_pulses = slow_pulses
         #: the last pulse at which the fan was seen turning at ``turning_hz`` or more
         self._turning_k: int | None = None
         self._held_k = 0                     # the pulse the hold began
@@ -332,7 +341,7 @@ class RestHold:
                 self._held_k = k
                 self.replaced = False
                 return True
-            if static.held and (turning or k - self._held_k > self.max_pulses):
+            if static.held and (turning or k - self._held_k > self.slow_pulses):
                 static.held = False
                 self._turning_k = None if not turning else k
                 self.replaced = False
@@ -487,7 +496,10 @@ class PulseAnalyzer:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
         self.transitions = Transitions(transition_settings(self.cfg), self.cfg.prf_hz)
         c = self.cfg.tracking
-        self.rest_hold = RestHold(3.0 * c.rate_floor_hz, HOLD_S * self.cfg.prf_hz)
+        ts = self.transitions.settings
+        self.rest_hold = RestHold(3.0 * c.rate_floor_hz, HOLD_S * self.cfg.prf_hz,
+                                  slow_pulses=2.0 * 3.0 * c.rate_floor_hz
+                                  / max(ts.min_spinup_hz_s, 1e-9) * self.cfg.prf_hz)
         self.rate_bound = RateBound(c.rate_floor_hz, c.max_ramp_hz_s, self._cycles_per_pulse)
         self._decide_settings = decide_settings(self.cfg)
         self.window = max(int(round(self.cfg.daemon.window_s * self.cfg.prf_hz)), 20)
