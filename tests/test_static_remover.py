@@ -140,7 +140,7 @@ def test_a_held_estimate_leaves_a_normalised_pulse_at_the_gain_it_had(device_gai
     assert level == pytest.approx(1.0, abs=0.01), level
 
 
-def test_a_slow_fan_leaves_no_ghost_and_the_slow_hold_ends():
+def test_a_slow_fan_leaves_no_ghost_and_the_slow_hold_ends(monkeypatch):
     """A fan turns (its blade at random angles), slows under 0.15 Hz and lingers with a
     blade near one angle for 100 pulses (two of the estimate's time constants), then
     turns on. Held from the first slow decision (``StaticRemover.held``), the estimate
@@ -165,7 +165,10 @@ def test_a_slow_fan_leaves_no_ghost_and_the_slow_hold_ends():
         s = StaticRemover(0.02, room.copy())
         hold = RestHold(turning_hz=0.15, max_pulses=10_000, slow_pulses=slow_pulses)
         g = dev.BurstGate()
-        before, after, held, frozen = [], [], [], []
+        before: list[float] = []
+        after: list[float] = []
+        held: list[bool] = []
+        frozen: list[bool] = []
         for k in range(740):
             lingering = 400 <= k < 500
             c = 0.55 if lingering else 0.3 + 0.5 * rng.random()
@@ -180,20 +183,17 @@ def test_a_slow_fan_leaves_no_ghost_and_the_slow_hold_ends():
         return float(np.mean(before[-100:])), float(np.mean(after[:40])), held, frozen
 
     turning_level, ghosted, _, _ = run(math.inf)
+    _, _, held, frozen = run(200.0)
     # adapting leaves -(1 - exp(-2)) of the lingering blade (|blade| 0.92), decaying at
     # the estimate's rate: about -0.45 over the next 40 pulses; held, the turning fan's
     # level within the noise of its random angles
-    unheld = RestHold.step
-    try:
-        RestHold.step = lambda self, k, state, d, static: False        # no hold at all
+    with monkeypatch.context() as m:
+        m.setattr(RestHold, "step", lambda self, k, state, d, static: False)   # no hold
         _, ghost, _, _ = run(math.inf)
-    finally:
-        RestHold.step = unheld
     assert abs(ghosted - turning_level) < 0.05, (ghosted, turning_level)
     assert ghost - turning_level < -0.3, (ghost, turning_level)
     # the hold ends after slow_pulses (200) though the decisions stay slow, and comes
     # back only after the fan is seen turning at 0.15 Hz again; never a rest's hold
-    _, _, held, frozen = run(200.0)
     first = held.index(True)
     assert 4 * first + 3 == 399 and not any(frozen)
     assert all(held[first:first + 50]) and not any(held[first + 51:])
