@@ -343,7 +343,8 @@ class RestHold:
                 return True
             if static.held and (turning or k - self._held_k > self.slow_pulses):
                 static.held = False
-                self._turning_k = None if not turning else k
+                if not turning:
+                    self._turning_k = None  # not held again before the fan turns again
                 self.replaced = False
                 return True
         elif turning or k - self._held_k > self.max_pulses:
@@ -496,10 +497,10 @@ class PulseAnalyzer:
         self.tracker = Tracker(tracker_settings(self.cfg, self.ref))
         self.transitions = Transitions(transition_settings(self.cfg), self.cfg.prf_hz)
         c = self.cfg.tracking
-        ts = self.transitions.settings
-        self.rest_hold = RestHold(3.0 * c.rate_floor_hz, HOLD_S * self.cfg.prf_hz,
-                                  slow_pulses=2.0 * 3.0 * c.rate_floor_hz
-                                  / max(ts.min_spinup_hz_s, 1e-9) * self.cfg.prf_hz)
+        turning_hz = 3.0 * c.rate_floor_hz
+        spinup = max(self.transitions.settings.min_spinup_hz_s, 1e-9)
+        self.rest_hold = RestHold(turning_hz, HOLD_S * self.cfg.prf_hz,
+                                  slow_pulses=2.0 * turning_hz / spinup * self.cfg.prf_hz)
         self.rate_bound = RateBound(c.rate_floor_hz, c.max_ramp_hz_s, self._cycles_per_pulse)
         self._decide_settings = decide_settings(self.cfg)
         self.window = max(int(round(self.cfg.daemon.window_s * self.cfg.prf_hz)), 20)
