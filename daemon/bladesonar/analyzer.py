@@ -302,8 +302,6 @@ class RestHold:
     (the aligner's error under drift, a device's gain) for up to ``max_pulses``.
     """
 
-    slow_pulses: float = math.inf
-
     def __init__(self, turning_hz: float, max_pulses: float, slow_pulses: float = math.inf
                  ) -> None:
         self.turning_hz = turning_hz
@@ -312,9 +310,6 @@ class RestHold:
         #: the last pulse at which the fan was seen turning at ``turning_hz`` or more
         self._turning_k: int | None = None
         self._held_k = 0                     # the pulse the hold began
-        #: the last change put another estimate in (a rest's hold), rather than only
-        #: stopping or resuming its adapting
-        self.replaced = False
 
     def step(self, k: int, state: Decision, d: Decision, static: StaticRemover) -> bool:
         """After the decision ``d`` at pulse ``k`` and the state published from it: hold
@@ -332,25 +327,21 @@ class RestHold:
                     static.mean[:] = held[-1]
                     static.frozen, static.held = True, False
                     self._held_k = k
-                    self.replaced = True
                     return True
             slow = d.direction != Direction.STOPPED and d.rate_hz is not None \
                 and math.isfinite(d.rate_hz) and d.rate_hz < self.turning_hz
             if not static.held and slow and self._turning_k is not None:
                 static.held = True
                 self._held_k = k
-                self.replaced = False
                 return True
             if static.held and (turning or k - self._held_k > self.slow_pulses):
                 static.held = False
                 if not turning:
                     self._turning_k = None  # not held again before the fan turns again
-                self.replaced = False
                 return True
         elif turning or k - self._held_k > self.max_pulses:
             static.frozen = False
             self._turning_k = None          # not held again before the fan turns again
-            self.replaced = False
             return True
         return False
 
@@ -735,10 +726,11 @@ class PulseAnalyzer:
             # a first hold's gain reference is the estimate after pulse k, as a pulse at a
             # time has it (not the block's end, which the first pass had reached)
             self.static.gain_ref = self.static.mean.copy()
-        if self.rest_hold.replaced:
+        if changed_static[1] and not self.static.frozen:
+            # a rest's hold began at k: it put another estimate in
             self.static.mean[:] = changed_static[0]
         # (otherwise the estimate after pulse k stands: the first pass had adapted it
-        # over the whole block, and only its adapting changed at k)
+        # over the whole block, and only whether it adapts changed at k)
         self.static.frozen, self.static.held = changed_static[1:]
         # a drop-out at the head's end marks the rest's first pulse
         self._carry_restart = {j for j in restart if j > k}
