@@ -90,3 +90,19 @@ def test_missing_is_its_own_error_and_an_unwritable_path_one_line(ref, tmp_path)
     with pytest.raises(ReferenceFileError, match="cannot be written") as e:
         save_reference(ref, blocker / "r.npz")
     assert "\n" not in str(e.value)
+
+
+def test_twin_bins_round_trip_and_a_bad_list_is_refused_by_name(ref, tmp_path):
+    """A glint scene's reference names each bin's look-alike (fingerprint.twin_bins);
+    a list that does not fit the table is refused with the value and its form."""
+    bins = ref.meta["phase_bins"]
+    twins = [-1] * bins
+    twins[2] = bins - 2
+    got, _ = read_reference(save_reference(
+        type(ref)(ref.table, ref.mean_pulse, dict(ref.meta, twin_bins=twins)),
+        tmp_path / "t.npz"))
+    assert got.meta["twin_bins"] == twins
+    for bad in ([0] * (bins - 1), [bins] + [-1] * (bins - 1), [True] + [-1] * (bins - 1)):
+        with pytest.raises(ReferenceFileError, match=f"twin_bins .*not a list of {bins}"):
+            parse_reference(_npz(ref.table, ref.mean_pulse, dict(ref.meta, twin_bins=bad)),
+                            "bad.npz")

@@ -526,6 +526,8 @@ class PulseAnalyzer:
                                     REST_SHIFT_MAX, REST_KEEP, REST_LEAST)
         self._table_norms = (self.ref.table ** 2).sum(axis=1)
         self._table_floor = fp.distance_floor(self.ref.table)
+        tw = self.ref.meta.get("twin_bins")
+        self._twins = np.asarray(tw, dtype=np.int64) if tw else None
         prf = self.cfg.prf_hz
         self.aliases = aliasing.AliasWatch(
             aliasing.fine_table(self.ref.table), self.window, self.ref.cycles_per_pulse,
@@ -571,6 +573,8 @@ class PulseAnalyzer:
         pm, ps = self.motion.preview(feats, ends), self.still.preview(still_feats, ends)
         # Python's numbers, not numpy's scalars, in the loop (the same values)
         phases, quals = m.phase.tolist(), m.quality.tolist()
+        twins = [math.nan] * len(phases) if self._twins is None else \
+            fp.twin_phases(m.phase, self._twins).tolist()
         # each pulse's half lag-1 difference energy (the noise level), for the block at
         # once: np.vecdot's rows are the vector products ``dd @ dd`` (the same bits)
         # (a block's first pulse against the last one before it; xv has a pulse at least)
@@ -586,7 +590,7 @@ class PulseAnalyzer:
                                           strict=True)):
             if k in self._restart_at:
                 self._restart_track()
-            st = self.tracker.update(k, phases[i], quals[i])
+            st = self.tracker.update(k, phases[i], quals[i], twins[i])
             self._follow_phase(k, st)
             tr = self.tracker
             fph = tr.follower_phase

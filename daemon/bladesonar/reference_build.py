@@ -49,9 +49,10 @@ REFERENCE_VERSION = 1
 class ReferenceMeta(TypedDict, total=False):
     """A reference's metadata (the file's ``meta`` member, JSON): what it was made from
     and with. :func:`build_reference` writes every key but ``direction_contrast`` (only
-    when it could be measured); a file is checked for the keys it must hold when it is
-    read (``io.reference``), and the older files lack some. ``id`` is the daemon's (the
-    file's sha256, 12 digits), never stored."""
+    when it could be measured) and ``twin_bins`` (only when some bin has a twin); a
+    file is checked for the keys it must hold when it is read (``io.reference``), and
+    the older files lack some. ``id`` is the daemon's (the file's sha256, 12 digits),
+    never stored."""
 
     format: str
     version: int
@@ -86,6 +87,9 @@ class ReferenceMeta(TypedDict, total=False):
     warmup_pulses: int
     warnings: list[str]
     direction_contrast: float
+    twin_bins: list[int]
+    """Per table bin, the bin whose pulses its clear matches often came from, or -1
+    (:func:`fingerprint.twin_bins`); only when some bin has one (older files: none)."""
 
 
 @dataclass
@@ -351,6 +355,7 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
                         angles=folded.denominator if folded is not None else None)
     phases = fp.fold_phases(k, r)
     table, weight = fp.build_table(feats, phases, bins)
+    twins = fp.twin_bins(feats, phases, bins)
     quality = fp.explained_fraction(feats, table, phases)
     window = max(int(round(cfg.daemon.window_s * prf)), 20)
     contrast = direction_contrast(feats, phases, bins, window)
@@ -386,6 +391,8 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     }
     if contrast is not None:
         meta["direction_contrast"] = round(contrast, 2)
+    if (twins >= 0).any():
+        meta["twin_bins"] = [int(t) for t in twins]
     return Reference(table=table, mean_pulse=mean_pulse, meta=meta)
 
 

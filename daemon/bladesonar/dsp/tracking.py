@@ -855,8 +855,16 @@ class Tracker:
         self.outlier_run = 0
         self.clear_run = 0
 
-    def update(self, k: int, z: float, quality: float) -> TrackState:
-        """Fold in pulse ``k`` matched at phase ``z`` (cycles) with quality in [0, 1]."""
+    def update(self, k: int, z: float, quality: float, twin: float = math.nan
+               ) -> TrackState:
+        """Fold in pulse ``k`` matched at phase ``z`` (cycles) with quality in [0, 1].
+        ``twin``: the angle whose pulses also match there (:func:`fingerprint.twin_bins`;
+        NaN: none): a turning track that has shown its line (``COAST_STREAK`` of
+        clear-match credit and ``coast_min_rate``, as for a coast) measures whichever of
+        the two its line expects. Not otherwise: a twin is a second chance for any line,
+        and in spent held-out scene 1500001 a fresh wrong one (half the rate, the other
+        way, in a reversal's spin-up) was kept by them for half a minute, and a line
+        standing at rest for 110 s after the fan started."""
         st = self.settings
         self._recent.append((int(k), float(z), max(float(quality), 0.0)))
         outlier = False
@@ -875,6 +883,10 @@ class Tracker:
                 self.coasted += 1
                 self._keep_follower_on_side()
             else:
+                if twin == twin and self.clear_credit >= COAST_STREAK \
+                        and abs(self._x[1]) >= st.coast_min_rate \
+                        and abs(wrap(twin - self._x[0])) < abs(wrap(z - self._x[0])):
+                    z = twin            # (NaN: no twin)
                 outlier = self._measure(int(k), z, quality)
         if self._x is not None:
             w = max(float(quality), 0.0)

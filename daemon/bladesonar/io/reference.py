@@ -310,6 +310,12 @@ def _check_meta(meta: Any) -> None:  # noqa: C901  a flat list, one check per me
     tr = meta.get("target_range_m")
     if tr is not None:
         _num(meta, "target_range_m", lo=0.0)
+    tw = meta.get("twin_bins")
+    bins = meta["phase_bins"]
+    if tw is not None and not (isinstance(tw, list) and len(tw) == bins and all(
+            isinstance(t, int) and not isinstance(t, bool) and -1 <= t < bins for t in tw)):
+        raise _Bad(f"metadata twin_bins = {short_repr(tw)}, not a list of {bins} bins "
+                   f"(-1 or 0 to {bins - 1})")
     w = meta.get("warnings", [])
     if not (isinstance(w, list) and all(isinstance(s, str) for s in w)):
         raise _Bad(f"metadata warnings = {short_repr(w)}, not a list of text")
