@@ -309,13 +309,12 @@ def twin_bins(features: np.ndarray, phases: np.ndarray, bins: int) -> np.ndarray
     """For each bin of the table, the other angle whose pulses often match it clearly
     (its *twin*), or -1: shape (bins,), learned from a reference's own pulses.
 
-    Why: where the echo is mostly glints (a blade's specular flash, each path's lasting
-    a pulse or two), each glint is nearly the mirror image of itself about the direction
-    it comes from, and the pulses a glint's two sides produce differ by less than one
-    pulse differs from the next. A pulse then matches the mirror angle as clearly as its
-    own, nearly as often (simulated six-bladed fans: 37-47 % of the clear matches, where
-    other scenes' are 0-2 %), and
-    a tracker that counts those as outliers gives its line up every second. Which bins
+    Why: where the echo is mostly glints (a blade's specular flash on each path, lasting
+    a pulse or two), two angles of a blade period can look alike: in a simulated
+    six-bladed fan the flashes of two stretches of the period were mirror images of each
+    other, and a pulse at one matched the other as clearly as its own, nearly as often
+    (37-47 % of the clear matches in such scenes, where other scenes' are 0-2 %). A
+    tracker that counts those as outliers gives its line up every second. Which bins
     are confused with which is a property of the room and fan, so it is measured where
     the truth is known: each half of the reference's pulses is matched against a table
     folded from the other half (its own pulses would favour their own bins), and a bin
