@@ -5,9 +5,9 @@ steadily the other way from its reference, at another speed.
 In that scene a pulse in a glint matches the mirror angle of another glint as clearly as
 its own, 47 % of the time (docs/dynamics.md, "Look-alike angles: glints"), and the
 tracker gave its line up every second: over its day the direction was unknown 63 % of
-the time, and on this recording it was told on 9 % of the pulses. The reference now names those look-alike
-angles and a track that has shown its line measures whichever its line expects.
-Truth from the simulator's schedule.
+the time, and on this recording it was told on 9 % of the pulses. The reference now
+names those look-alike angles and a track that has shown its line measures whichever
+its line expects. Truth from the simulator's schedule.
 """
 
 from __future__ import annotations
