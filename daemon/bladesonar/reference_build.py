@@ -355,10 +355,11 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
                         angles=folded.denominator if folded is not None else None)
     phases = fp.fold_phases(k, r)
     table, weight = fp.build_table(feats, phases, bins)
-    twins = fp.twin_bins(feats, phases, bins)
+    halves = fp.cross_tables(feats, phases, bins)
+    twins = fp.twin_bins(feats, phases, bins, halves)
     quality = fp.explained_fraction(feats, table, phases)
     window = max(int(round(cfg.daemon.window_s * prf)), 20)
-    contrast = direction_contrast(feats, phases, bins, window)
+    contrast = direction_contrast(feats, phases, bins, window, halves)
     if contrast is not None and contrast < aliasing.MIRROR_DOUBT_Z:
         warnings.append(
             f"from here the fan's echoes turned either way are nearly alike (direction "
@@ -396,17 +397,17 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     return Reference(table=table, mean_pulse=mean_pulse, meta=meta)
 
 
-def direction_contrast(feats: np.ndarray, phases: np.ndarray, bins: int, window: int
+def direction_contrast(feats: np.ndarray, phases: np.ndarray, bins: int, window: int,
+                       halves: list[tuple[slice, np.ndarray]] | None = None
                        ) -> float | None:
     """How clearly the reference's own pulses tell their direction from its mirror: the
     median, over windows of the analysis's length, of :func:`aliasing.mirror_evidence` of
-    each half's pulses against a table built from the other half (a table built from the
-    same pulses would favour their own path). None for too short a recording."""
-    n = len(feats)
-    half = n // 2
+    each half's pulses against a table built from the other half
+    (:func:`fingerprint.cross_tables`, or ``halves`` if made). None for too short a
+    recording."""
     zs: list[float] = []
-    for test, train in ((slice(half, n), slice(0, half)), (slice(0, half), slice(half, n))):
-        table, _ = fp.build_table(feats[train], phases[train], bins)
+    for test, table in (halves if halves is not None else
+                        fp.cross_tables(feats, phases, bins)):
         fine = aliasing.fine_table(table)
         f, p = feats[test], phases[test]
         for s0 in range(0, len(f) - aliasing.MIRROR_MIN_PULSES + 1, window):

@@ -305,7 +305,26 @@ def match(features: np.ndarray, table: np.ndarray, table_sq: np.ndarray | None =
                    distance=d0)
 
 
-def twin_bins(features: np.ndarray, phases: np.ndarray, bins: int) -> np.ndarray:
+def nearest_bin(phases: np.ndarray, bins: int) -> np.ndarray:
+    """The table bin (bin b centred on phase b / ``bins``) nearest each phase."""
+    return np.round(np.mod(np.asarray(phases, dtype=np.float64), 1.0) * bins) \
+        .astype(np.int64) % bins
+
+
+def cross_tables(features: np.ndarray, phases: np.ndarray, bins: int
+                 ) -> list[tuple[slice, np.ndarray]]:
+    """Each half of a reference's pulses with a table folded from the other half: (the
+    half's rows, that table), twice. What a reference measures of its own pulses is
+    measured this way, since a table folded from the same pulses would favour them."""
+    n = len(features)
+    half = n // 2
+    return [(test, build_table(features[train], phases[train], bins)[0])
+            for test, train in ((slice(half, n), slice(0, half)),
+                                (slice(0, half), slice(half, n)))]
+
+
+def twin_bins(features: np.ndarray, phases: np.ndarray, bins: int,
+              halves: list[tuple[slice, np.ndarray]] | None = None) -> np.ndarray:
     """For each bin of the table, the other angle whose pulses often match it clearly
     (its *twin*), or -1: shape (bins,), learned from a reference's own pulses.
 
@@ -317,7 +336,7 @@ def twin_bins(features: np.ndarray, phases: np.ndarray, bins: int) -> np.ndarray
     tracker that counts those as outliers gives its line up every second. Which bins
     are confused with which is a property of the room and fan, so it is measured where
     the truth is known: each half of the reference's pulses is matched against a table
-    folded from the other half (its own pulses would favour their own bins), and a bin
+    folded from the other half (:func:`cross_tables`, or ``halves`` if made), and a bin
     whose clear matches (quality ``TWIN_CLEAR`` or more) came from one other angle, more
     than 1/8 period away, at least ``TWIN_SHARE`` of the time (and ``TWIN_LEAST`` times)
     has that angle as its twin. A match at a bin with a twin could be either angle;
@@ -327,18 +346,15 @@ def twin_bins(features: np.ndarray, phases: np.ndarray, bins: int) -> np.ndarray
     """
     f = np.asarray(features, dtype=np.float64)
     p = np.mod(np.asarray(phases, dtype=np.float64), 1.0)
-    n = len(f)
     twins = np.full(bins, -1, dtype=np.int64)
-    half = n // 2
-    if half < 2 or bins < 8:
+    if len(f) // 2 < 2 or bins < 8:
         return twins
     true_bin, got_bin = [], []
-    for test, train in ((slice(half, n), slice(0, half)), (slice(0, half), slice(half, n))):
-        table, _ = build_table(f[train], p[train], bins)
+    for test, table in (halves if halves is not None else cross_tables(f, p, bins)):
         m = match(f[test], table, None, distance_floor(table))
         clear = m.quality >= TWIN_CLEAR
-        true_bin.append(np.round(p[test][clear] * bins).astype(np.int64) % bins)
-        got_bin.append(np.round(m.phase[clear] * bins).astype(np.int64) % bins)
+        true_bin.append(nearest_bin(p[test][clear], bins))
+        got_bin.append(nearest_bin(m.phase[clear], bins))
     tb, gb = np.concatenate(true_bin), np.concatenate(got_bin)
     excl = max(1, bins // 8)
     for b in range(bins):
@@ -357,8 +373,7 @@ def twin_phases(phases: np.ndarray, twins: np.ndarray) -> np.ndarray:
     """The twin angle (:func:`twin_bins`, bin centre) of each matched phase, NaN where
     its bin has none."""
     bins = len(twins)
-    t = twins[np.round(np.mod(np.asarray(phases, dtype=np.float64), 1.0) * bins)
-              .astype(np.int64) % bins]
+    t = twins[nearest_bin(phases, bins)]
     return np.where(t >= 0, t / bins, np.nan)
 
 

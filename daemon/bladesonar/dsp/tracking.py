@@ -655,18 +655,22 @@ class Tracker:
         counted as outliers, so that a fan stopped with no blade in view is not hidden
         by a coasting track (docs/dynamics.md)."""
         st = self.settings
-        if quality >= COAST_BELOW or st.coast_max <= 0 or self.clear_credit < COAST_STREAK:
+        if quality >= COAST_BELOW or st.coast_max <= 0 or not self._shown_line():
             return False
         assert self._x is not None
-        if abs(self._x[1]) < st.coast_min_rate:
-            # a track slower than the floor claims no direction, and near rest a blade
-            # standing at a blind angle is the stop a coast must not hide; a follower
-            # coasting there would carry a spin-down's deceleration through zero, to a
-            # line the other way
-            return False
         period = 1.0 / max(abs(self._x[1]), 1e-9)
         return self.clear_k is not None and \
             k - self.clear_k <= min(COAST_SHARE * period, st.coast_max)
+
+    def _shown_line(self) -> bool:
+        """Whether the track has shown its line and turns: ``COAST_STREAK`` of clear-match
+        credit, and a rate of ``coast_min_rate`` or more. Such a track may coast through
+        weak matches and take a match's twin. A track slower than the floor claims no
+        direction, and near rest a blade standing at a blind angle is the stop a coast
+        must not hide; a follower coasting there would carry a spin-down's deceleration
+        through zero, to a line the other way."""
+        return self._x is not None and self.clear_credit >= COAST_STREAK \
+            and abs(self._x[1]) >= self.settings.coast_min_rate
 
     def _keep_follower_on_side(self) -> None:
         """A coast carries no match: a follower whose rate has crossed zero against the
@@ -859,12 +863,12 @@ class Tracker:
                ) -> TrackState:
         """Fold in pulse ``k`` matched at phase ``z`` (cycles) with quality in [0, 1].
         ``twin``: the angle whose pulses also match there (:func:`fingerprint.twin_bins`;
-        NaN: none): a turning track that has shown its line (``COAST_STREAK`` of
-        clear-match credit and ``coast_min_rate``, as for a coast) measures whichever of
-        the two its line expects. Not otherwise: a twin is a second chance for any line,
-        and in spent held-out scene 1500001 a fresh wrong one (half the rate, the other
-        way, in a reversal's spin-up) was kept by them for half a minute, and a line
-        standing at rest for 110 s after the fan started."""
+        NaN: none): a turning track that has shown its line (:meth:`_shown_line`, as
+        for a coast) measures whichever of the two its line expects. Not otherwise: a
+        twin is a second chance for any line, and in spent held-out scene 1500001 a
+        fresh wrong one (half the rate, the other way, in a reversal's spin-up) was kept
+        by them for half a minute, and a line standing at rest for 110 s after the fan
+        started."""
         st = self.settings
         self._recent.append((int(k), float(z), max(float(quality), 0.0)))
         outlier = False
@@ -883,8 +887,7 @@ class Tracker:
                 self.coasted += 1
                 self._keep_follower_on_side()
             else:
-                if twin == twin and self.clear_credit >= COAST_STREAK \
-                        and abs(self._x[1]) >= st.coast_min_rate \
+                if twin == twin and self._shown_line() \
                         and abs(wrap(twin - self._x[0])) < abs(wrap(z - self._x[0])):
                     z = twin            # (NaN: no twin)
                 outlier = self._measure(int(k), z, quality)
