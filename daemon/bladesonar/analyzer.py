@@ -27,7 +27,7 @@ from .config import Config
 from .dsp import aliasing, rangescale
 from .dsp import device as dev
 from .dsp import fingerprint as fp
-from .dsp.decide import MotionMeter, RestFloor, decide, noise_threshold
+from .dsp.decide import MotionMeter, NoiseFloor, RestFloor, decide, noise_threshold
 from .dsp.pulses import DROPOUT, OK, WARMUP, AlignedPulses, PulseAligner
 from .dsp.stats import median
 from .dsp.tracking import Tracker, TrackState
@@ -36,6 +36,7 @@ from .transitions import Event, Transitions
 from .tuning import (
     ANCHOR_TRUST_S,
     HOLD_S,
+    NOISE_FALL,
     NOISE_MARGIN,
     RECHECK_EVERY,
     REST_KEEP,
@@ -436,7 +437,7 @@ class PulseAnalyzer:
     _recent_q: np.ndarray = field(init=False, repr=False)
     _recent_n: int = 0
     _prev: np.ndarray | None = None               # last raw pulse (for the noise level)
-    _noise: float = float("nan")                  # running raw half lag-1 difference energy
+    noise: NoiseFloor = field(init=False)         # one pulse's noise energy (raw gate)
     dropped: int = 0
     seen: int = 0
     aliases: aliasing.AliasWatch = field(init=False)   # the alias check (dsp/aliasing.py)
@@ -475,6 +476,11 @@ class PulseAnalyzer:
     scale_corr: float = 1.0
     _rescale: rangescale.Rescaler | None = None
     _scale_due: int = 0
+    #: the first pulse of the decisions' present run of a direction (before a scale
+    #: misfit makes it unknown), None out of one: the static estimate holds the room's
+    #: mean over a rotation, as the reference's, a window into such a run (check_scale)
+    _turning_k0: int | None = None
+    _decided_turning: bool = False
     #: a recording read from a file: samples lost in a drop-out leave no count of the
     #: pulses lost (the daemon counts them from the capture position), so nothing is
     #: carried across one that a jump of unknown length would spoil (_restart_track)
@@ -495,6 +501,7 @@ class PulseAnalyzer:
         self.rate_bound = RateBound(c.rate_floor_hz, c.max_ramp_hz_s, self._cycles_per_pulse)
         self._decide_settings = decide_settings(self.cfg)
         self.window = max(int(round(self.cfg.daemon.window_s * self.cfg.prf_hz)), 20)
+        self.noise = NoiseFloor(NOISE_FALL, self.window)
         self._recent_acc = np.zeros(4 * self.window)
         self._recent_q = np.zeros(4 * self.window)
         # lags up to the blade period at the slowest rate followed (reference rate / slew
@@ -600,9 +607,7 @@ class PulseAnalyzer:
             if self.aliases.count % RECHECK_EVERY == 0:
                 self._recheck_track()
             if self._prev is not None:
-                e = 0.5 * lag1[i]
-                self._noise = e if not math.isfinite(self._noise) else (
-                    self._noise + (e - self._noise) / self.window)
+                self.noise.update(lag1[i])
             self._prev = xv[i]
             self._note_match(not st.outlier and st.locked, quals[i])
             t_s = edge / fs
@@ -619,6 +624,7 @@ class PulseAnalyzer:
                 state, fired = self.transitions.step(t_s, k, d, self._since)
                 state, changed = self._feed_back(k, t_s, d, state)
                 self.state = self.transitions.carry(t_s, state)
+                self._note_turning(k)
                 self.state_edge = edge
                 self.new_events.extend(fired)
                 self._since = 0
@@ -696,7 +702,7 @@ class PulseAnalyzer:
         feats = fp.envelope_features(res, np.zeros(res.shape[1]), kind=a.features,
                                      smooth=a.envelope_smooth)
         self._scale_due -= len(xv)
-        if self._scale_due <= 0:
+        if self._scale_due <= 0 and self._holds_room_mean(int(block.index[v][0])):
             self.check_scale(self.static.mean)
         if self._rescale is not None:
             feats = self._rescale(feats)
@@ -749,13 +755,33 @@ class PulseAnalyzer:
         self._unwrapped.clear()
         self.restarts += 1
 
+    def _note_turning(self, k: int) -> None:
+        """After the decision at pulse ``k``: where the present run of decisions that
+        the fan turns began (``_turning_k0``)."""
+        if not self._decided_turning:
+            self._turning_k0 = None
+        elif self._turning_k0 is None:
+            self._turning_k0 = k
+
+    def _holds_room_mean(self, k: int) -> bool:
+        """Whether the static estimate at pulse ``k`` is the mean pulse the reference's
+        is compared with: adapting, and a window into a run of decisions that the fan
+        turns (or before any decision: a recording's first block). At rest it holds the
+        blade at one angle, and against the reference's mean over a rotation the range
+        scale read -5 % (held-out 1600018): a fan that started then was unknown ("record
+        a new reference") for 28 s, until the next check."""
+        return not (self.static.frozen or self.static.held) and (
+            self.state is None
+            or (self._turning_k0 is not None and k - self._turning_k0 >= self.window))
+
     def check_scale(self, static_mean: np.ndarray) -> None:
         """(Re-)estimate the range scale against the reference's static room; features are
-        rescaled while it is off 1 but within SCALE_LIMIT."""
+        rescaled while it is off 1 but within SCALE_LIMIT. A scale beyond it is checked
+        again a window later rather than SCALE_EVERY: it makes every answer unknown."""
         g = self.ref.gate
         s, corr = rangescale.estimate_scale(self.ref.mean_pulse, static_mean, g.start)
         self.scale, self.scale_corr = s, corr
-        self._scale_due = SCALE_EVERY
+        self._scale_due = SCALE_EVERY if not self.scale_misfit else self.window
         r = rangescale.Rescaler(s, g.start, g.length)
         self._rescale = r if r.active and corr >= SCALE_MIN_CORR and \
             rangescale.within(s, SCALE_LIMIT) else None
@@ -977,7 +1003,8 @@ class PulseAnalyzer:
         # scene: static echo energy over the noise per pulse (raw domain); while nothing
         # changes between pulses, lag-1 differences of raw pulses are pure noise
         st = self.static.mean
-        scene = float(st @ st) / self._noise if self._noise > 0 else float("nan")
+        noise = self.noise.energy
+        scene = float(st @ st) / noise if noise > 0 else float("nan")
         n = self._recent_n
         acc = self._recent_acc[n - len(self._recent):n]
         qual = self._recent_q[n - len(self._recent):n]
@@ -1027,6 +1054,7 @@ class PulseAnalyzer:
         d = d.replaced(mirror_checked=locked and self.aliases.mirror_checked(self.tracker),
                        doubtful_room=self.aliases.doubtful)
         misfit = self.scale_misfit
+        self._decided_turning = d.direction in WAYS
         if misfit and d.direction in WAYS:
             return Decision(Direction.UNKNOWN, None, d.relative_rate, d.rate_hz, d.rpm,
                             min(d.confidence, self._decide_settings.min_confidence) * 0.5,

@@ -24,6 +24,9 @@ STILL_WINDOW_S = 1.5
 #: stood over the noise and kept every rest of a simulated day from being called stopped
 #: (bench_day --snr-db 50). At 10000 it is 40 dB lower.
 SLOW_FACTOR = 10000.0
+#: Pulses over which the noise estimate of the scene test follows a fall (decide.NoiseFloor;
+#: it rises over the analysis window): a quarter second, against the window's 5 s.
+NOISE_FALL = 8.0
 #: Share of the band (up to Nyquist) the short meter's envelope features keep: the top of
 #: the band carries the aligner's fractional-shift error, which looks like motion under
 #: clock drift at high SNR (docs/dynamics.md).

@@ -1,0 +1,55 @@
+"""A slow fan that rests and starts again (spent held-out scene 1600018: 3 blades, 0.45 m,
+1.9 m away): its start must be told, not held unknown as a reference that no longer fits.
+
+The range scale (the speed of sound against the reference's) is checked every 1024
+pulses by comparing the static estimate with the reference's mean pulse, a mean over a
+rotation. A slow fan's spin-down keeps the estimate adapting through the rest (the slow
+hold ran out), so at rest it holds the blade at one angle, and a check then read -4.5 %
+(beyond the 3 % that rescaling follows): every answer after the start was unknown,
+"record a new reference", until the next check 30 s later (in that scene's day a start
+confirmed 28 s late). The scale is now checked only a window into a run of decisions
+that the fan turns. Truth from the simulator's schedule.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from bladesonar import config
+from bladesonar.offline import analyze
+from bladesonar.reference_build import build_reference
+from bladesonar.sim import random_scene
+from bladesonar.sim.render import simulate
+from bladesonar.sim.schedule import parse
+from bladesonar.sim.score import true_time, truth_events
+
+pytestmark = pytest.mark.slow
+
+SEED = 1600018          # spent held-out (docs/dynamics.md): the reference ccw at 0.417 Hz
+#: 0.2 Hz cw, a spin-down over 7.7 s (as that day's at 675 s), 40 s of rest, a start;
+#: the checks fall at 0, 30, 60 s of pulses: the third in the rest
+SCHEDULE, SECONDS = "cw:0.2:30,stop:0:40~7.7,cw:0.4:20~5.7", 95.0
+
+
+def test_a_start_after_a_slow_spin_down_is_told():
+    dr = random_scene.draw(SEED)
+    cfg = config.replace(config.Config(), scene={"blades": dr.blades})
+    x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
+                    schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60", seed=SEED,
+                    snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
+                    include_paths=False)
+    ref = build_reference(x, cfg, dr.ref_direction)
+    y, _ = simulate(dr.scene, cfg, SECONDS, schedule=SCHEDULE, seed=SEED + 7,
+                    snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
+                    include_paths=False)
+    _, rows = analyze(y, cfg, ref, track=True)
+    truth = truth_events(parse(SCHEDULE), SECONDS)
+    assert [e.kind for e in truth] == ["stopped", "started"]
+    got = [(r["event"], true_time(r["t_s"], dr.drift_ppm)) for r in rows if r["event"]]
+    assert [k for k, _ in got] == ["stopped", "started"], got
+    # the issue's bound for a start is 2 s at the 95th percentile; a slow start here
+    # takes 2.8 s (19 s with the check at rest)
+    assert 0.0 <= got[1][1] - truth[1].t_s <= 4.0, (got, truth)
+    assert not [r["t_s"] for r in rows if "record a new reference" in r["reason"]]
+    # the fan turning the other way from its reference after the start: reversed
+    assert rows[-1]["direction"] == "reversed", rows[-1]
