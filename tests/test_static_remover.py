@@ -197,3 +197,42 @@ def test_a_slow_fan_leaves_no_ghost_and_the_slow_hold_ends(monkeypatch):
     first = held.index(True)
     assert 4 * first + 3 == 399 and not any(frozen)
     assert all(held[first:first + 50]) and not any(held[first + 51:])
+
+
+def test_a_rest_after_a_long_slow_spin_down_is_held():
+    """A fan turns, slows for longer than the slow hold lasts (a spin-down from 0.2 Hz:
+    9 s under three times the floor), then rests with a blade in view. The slow hold
+    runs out and the estimate adapts to the lingering blade; the rest must still be held
+    from the estimate of while the fan turned, so that the resting blade stands in the
+    residual as a turning fan leaves it there. Before, the slow hold's end cancelled the
+    rest's hold too, the estimate took in the resting blade, and when the fan started
+    its ghost held a standing line (spent held-out 1600010: a start 10 s late)."""
+    from bladesonar.analyzer import RestHold
+    from bladesonar.answer import Direction
+    rng = np.random.default_rng(7)
+    L = 96
+    x_ax = np.linspace(0.0, 1.0, L)
+    room = np.sin(np.linspace(0.0, 40.0, L)) * np.exp(-np.linspace(0.0, 3.0, L))
+    blade = lambda c: 0.5 * np.exp(-0.5 * ((x_ax - c) / 0.02) ** 2)   # noqa: E731
+    shape = blade(0.55) / np.linalg.norm(blade(0.55))
+    s = StaticRemover(0.02, room.copy())
+    g = dev.BurstGate()
+    hold = RestHold(turning_hz=0.15, max_pulses=10_000, slow_pulses=200)
+    turning, slow = _decision(Direction.SAME, 0.5), _decision(Direction.SAME, 0.08)
+    rest = _decision(Direction.STOPPED, 0.0)
+    turning_level = []
+    for k in range(700):
+        c = 0.3 + 0.5 * rng.random() if k < 300 else 0.55     # slow, then at rest
+        x = room + blade(c) + 0.003 * rng.standard_normal(L)
+        _, r, _ = s.skip_bursts(x[None, :], g, np.array([k]))
+        if 200 <= k < 300:
+            turning_level.append(float(r[0] @ shape))
+        if k % 4 == 3:
+            d = turning if k < 300 else slow if k < 560 else rest
+            hold.step(k, d, d, s)
+    # the slow hold began at 303 and ran out at 507; the stop at 563 is held
+    assert s.frozen and not s.held
+    _, r, _ = s.skip_bursts((room + blade(0.55))[None, :], g, np.array([700]))
+    # the resting blade against the turning fan's average: about |blade| (0.92) over the
+    # turning fan's level at that angle; adapted, it was nearly gone (0.92 exp(-1))
+    assert float(r[0] @ shape) - np.mean(turning_level) > 0.7, float(r[0] @ shape)

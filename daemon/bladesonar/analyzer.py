@@ -296,7 +296,8 @@ class RestHold:
     estimate also stops adapting from the first decision that reads the fan under
     ``turning_hz`` (``StaticRemover.held``, which, unlike a rest's hold, tells the
     analysis nothing of rest), and adapts again on the same release, or after
-    ``slow_pulses``: the longest a fan driven through zero stays under ``turning_hz``
+    ``slow_pulses`` (a rest that follows is still held: a spin-down from 0.2 Hz is that
+    slow for longer): the longest a fan driven through zero stays under ``turning_hz``
     (down and up again at ``min_spinup_hz_s``, 6 s): the ghost is a reversal's, and a
     fan that stays slow, or a fast one whose decisions read a slow line where its
     track keeps losing it, should not keep an estimate that no longer follows the room
@@ -311,6 +312,9 @@ class RestHold:
         #: the last pulse at which the fan was seen turning at ``turning_hz`` or more
         self._turning_k: int | None = None
         self._held_k = 0                     # the pulse the hold began
+        #: the slow hold ran out since the fan was last seen turning: not held slow again
+        #: before it turns, but a rest that follows is still held from ``_turning_k``
+        self._slow_spent = False
 
     def step(self, k: int, state: Decision, d: Decision, static: StaticRemover) -> bool:
         """After the decision ``d`` at pulse ``k`` and the state published from it: hold
@@ -319,6 +323,7 @@ class RestHold:
             and (state.rate_hz or 0.0) >= self.turning_hz
         if turning:
             self._turning_k = k
+            self._slow_spent = False
         if not static.frozen:
             if d.direction == Direction.STOPPED and self._turning_k is not None:
                 held = [m for j, m in static.history if j <= self._turning_k]
@@ -331,18 +336,25 @@ class RestHold:
                     return True
             slow = d.direction != Direction.STOPPED and d.rate_hz is not None \
                 and math.isfinite(d.rate_hz) and d.rate_hz < self.turning_hz
-            if not static.held and slow and self._turning_k is not None:
+            if not static.held and slow and self._turning_k is not None \
+                    and not self._slow_spent:
                 static.held = True
                 self._held_k = k
                 return True
             if static.held and (turning or k - self._held_k > self.slow_pulses):
                 static.held = False
-                if not turning:
-                    self._turning_k = None  # not held again before the fan turns again
+                # not held slow again before the fan turns again; a rest still is: a
+                # spin-down from 0.25 Hz over 10 s stays slow longer than the slow hold,
+                # and an estimate left to adapt through the rest took in the resting
+                # blade, whose ghost then held a standing line for 10 s after the fan
+                # started (spent held-out 1600010; 1600018 the same, 28 s with its
+                # range-scale check)
+                self._slow_spent = not turning
                 return True
         elif turning or k - self._held_k > self.max_pulses:
             static.frozen = False
             self._turning_k = None          # not held again before the fan turns again
+            self._slow_spent = False
             return True
         return False
 
@@ -476,11 +488,9 @@ class PulseAnalyzer:
     scale_corr: float = 1.0
     _rescale: rangescale.Rescaler | None = None
     _scale_due: int = 0
-    #: the first pulse of the decisions' present run of a direction (before a scale
-    #: misfit makes it unknown), None out of one: the static estimate holds the room's
-    #: mean over a rotation, as the reference's, a window into such a run (check_scale)
-    _turning_k0: int | None = None
-    _decided_turning: bool = False
+    #: the last pulse published stopped: the static estimate then holds the blade at
+    #: rest, not the room's mean over a rotation the reference's is (check_scale)
+    _stopped_k: int | None = None
     #: a recording read from a file: samples lost in a drop-out leave no count of the
     #: pulses lost (the daemon counts them from the capture position), so nothing is
     #: carried across one that a jump of unknown length would spoil (_restart_track)
@@ -624,7 +634,8 @@ class PulseAnalyzer:
                 state, fired = self.transitions.step(t_s, k, d, self._since)
                 state, changed = self._feed_back(k, t_s, d, state)
                 self.state = self.transitions.carry(t_s, state)
-                self._note_turning(k)
+                self._stopped_k = k if self.state.direction == Direction.STOPPED \
+                    else self._stopped_k
                 self.state_edge = edge
                 self.new_events.extend(fired)
                 self._since = 0
@@ -755,24 +766,17 @@ class PulseAnalyzer:
         self._unwrapped.clear()
         self.restarts += 1
 
-    def _note_turning(self, k: int) -> None:
-        """After the decision at pulse ``k``: where the present run of decisions that
-        the fan turns began (``_turning_k0``)."""
-        if not self._decided_turning:
-            self._turning_k0 = None
-        elif self._turning_k0 is None:
-            self._turning_k0 = k
-
     def _holds_room_mean(self, k: int) -> bool:
-        """Whether the static estimate at pulse ``k`` is the mean pulse the reference's
-        is compared with: adapting, and a window into a run of decisions that the fan
-        turns (or before any decision: a recording's first block). At rest it holds the
-        blade at one angle, and against the reference's mean over a rotation the range
-        scale read -5 % (held-out 1600018): a fan that started then was unknown ("record
-        a new reference") for 28 s, until the next check."""
+        """Whether the static estimate at pulse ``k`` may be the mean pulse the
+        reference's is compared with: adapting (not held for a rest or a slow fan), and
+        a window past the last pulse published stopped. At rest it holds the blade at one
+        angle, and against the reference's mean over a rotation the range scale read
+        -4.5 % (spent held-out 1600018): a fan that started then was unknown ("record a
+        new reference") for 28 s, until the next check. Not more than that: a scale
+        misread while a fast fan turned (1.4 %, 1600019) was mended by the next check,
+        and one put off while the answers were unknown spoilt 97 s."""
         return not (self.static.frozen or self.static.held) and (
-            self.state is None
-            or (self._turning_k0 is not None and k - self._turning_k0 >= self.window))
+            self._stopped_k is None or k - self._stopped_k > self.window)
 
     def check_scale(self, static_mean: np.ndarray) -> None:
         """(Re-)estimate the range scale against the reference's static room; features are
@@ -1054,7 +1058,6 @@ class PulseAnalyzer:
         d = d.replaced(mirror_checked=locked and self.aliases.mirror_checked(self.tracker),
                        doubtful_room=self.aliases.doubtful)
         misfit = self.scale_misfit
-        self._decided_turning = d.direction in WAYS
         if misfit and d.direction in WAYS:
             return Decision(Direction.UNKNOWN, None, d.relative_rate, d.rate_hz, d.rpm,
                             min(d.confidence, self._decide_settings.min_confidence) * 0.5,

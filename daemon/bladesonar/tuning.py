@@ -57,10 +57,14 @@ TREND_SHARE = 0.02
 SETTLED_AGREE = 0.03
 
 #: Pulses between the copies of the static estimate kept for a fan that comes to rest,
-#: and how many are kept (12 s: a spin-down's last seconds above three times the floor
-#: lie up to about 8 s before its stop is confirmed) (analyzer.RestHold).
+#: and how many are kept (analyzer.RestHold): 20 s. A spin-down's last moment above three
+#: times the floor lies up to 12 s before its stop is confirmed (from 0.2 Hz over the
+#: slowest ordinary spin-down, 12 s, 9 s of it slower), and analyze's blocks of 256
+#: pulses (7.5 s) have copied the estimate that far ahead of the pulse being decided.
+#: At 12 s kept, a rest 8 s after such a moment found no copy old enough and was not held
+#: offline (spent held-out 1600018's scene, tests/test_slow_rest_and_start.py).
 SNAPSHOT_EVERY = 17
-SNAPSHOTS = 24
+SNAPSHOTS = 40
 #: Longest hold of the static estimate while the fan rests, s (RestHold).
 HOLD_S = 600.0
 #: How long a turning state must have been published before its speed bounds new lines,
