@@ -16,11 +16,8 @@ from collections import Counter
 
 import pytest
 
-from bladesonar import config
 from bladesonar.offline import analyze
-from bladesonar.reference_build import build_reference
-from bladesonar.sim import random_scene
-from bladesonar.sim.render import simulate
+from scene_runs import learned_and_rendered
 
 pytestmark = pytest.mark.slow
 
@@ -29,17 +26,8 @@ RATE_HZ, SECONDS = 0.263, 40.0      # the fan ccw (reversed) at a rate of that d
 
 
 def test_a_glinting_fans_direction_is_told():
-    dr = random_scene.draw(SEED)
-    cfg = config.replace(config.Config(), scene={"blades": dr.blades})
-    x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
-                    schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60", seed=SEED,
-                    snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
-                    include_paths=False)
-    ref = build_reference(x, cfg, dr.ref_direction)
+    dr, cfg, ref, y = learned_and_rendered(SEED, f"ccw:{RATE_HZ}:{SECONDS}", SECONDS)
     assert dr.ref_direction == "cw" and ref.meta.get("twin_bins"), ref.meta.keys()
-    y, _ = simulate(dr.scene, cfg, SECONDS, schedule=f"ccw:{RATE_HZ}:{SECONDS}",
-                    seed=SEED + 7, snr_db=dr.snr_db, drift_ppm=dr.drift_ppm,
-                    nuisances=dr.nuisances, include_paths=False)
     summary, rows = analyze(y, cfg, ref, track=True)
     assert summary["direction"] == "reversed", summary
     assert summary["rate_hz"] == pytest.approx(RATE_HZ, rel=0.01)

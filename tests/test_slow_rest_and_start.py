@@ -16,13 +16,10 @@ from __future__ import annotations
 
 import pytest
 
-from bladesonar import config
 from bladesonar.offline import analyze
-from bladesonar.reference_build import build_reference
-from bladesonar.sim import random_scene
-from bladesonar.sim.render import simulate
 from bladesonar.sim.schedule import parse
 from bladesonar.sim.score import true_time, truth_events
+from scene_runs import learned_and_rendered
 
 pytestmark = pytest.mark.slow
 
@@ -33,16 +30,7 @@ SCHEDULE, SECONDS = "cw:0.2:30,stop:0:40~7.7,cw:0.4:20~5.7", 95.0
 
 
 def test_a_start_after_a_slow_spin_down_is_told():
-    dr = random_scene.draw(SEED)
-    cfg = config.replace(config.Config(), scene={"blades": dr.blades})
-    x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
-                    schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60", seed=SEED,
-                    snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
-                    include_paths=False)
-    ref = build_reference(x, cfg, dr.ref_direction)
-    y, _ = simulate(dr.scene, cfg, SECONDS, schedule=SCHEDULE, seed=SEED + 7,
-                    snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
-                    include_paths=False)
+    dr, cfg, ref, y = learned_and_rendered(SEED, SCHEDULE, SECONDS)
     _, rows = analyze(y, cfg, ref, track=True)
     truth = truth_events(parse(SCHEDULE), SECONDS)
     assert [e.kind for e in truth] == ["stopped", "started"]

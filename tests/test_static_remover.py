@@ -93,6 +93,18 @@ def _decision(direction, rate_hz: float | None):
                     rpm=None, confidence=0.9, reason="")
 
 
+def _room_and_blade(L: int):
+    """A static room of ``L`` samples, a blade's echo at a place in it (0..1) and the
+    unit shape of the blade at 0.55, where the slow and resting fans linger."""
+    x_ax = np.linspace(0.0, 1.0, L)
+    room = np.sin(np.linspace(0.0, 40.0, L)) * np.exp(-np.linspace(0.0, 3.0, L))
+
+    def blade(c: float) -> np.ndarray:
+        return 0.5 * np.exp(-0.5 * ((x_ax - c) / 0.02) ** 2)
+
+    return room, blade, blade(0.55) / np.linalg.norm(blade(0.55))
+
+
 @pytest.mark.parametrize("device_gain", [0.35, 2.9])
 def test_a_held_estimate_leaves_a_normalised_pulse_at_the_gain_it_had(device_gain):
     """A loud fan turns, then rests with a blade in view; the device's gain is not the
@@ -106,10 +118,8 @@ def test_a_held_estimate_leaves_a_normalised_pulse_at_the_gain_it_had(device_gai
     from bladesonar.answer import Direction
     rng = np.random.default_rng(11)
     L = 96
-    x_ax = np.linspace(0.0, 1.0, L)
-    room = np.sin(np.linspace(0.0, 40.0, L)) * np.exp(-np.linspace(0.0, 3.0, L))
+    room, blade, _ = _room_and_blade(L)
     room /= np.linalg.norm(room)
-    blade = lambda c: 0.5 * np.exp(-0.5 * ((x_ax - c) / 0.02) ** 2)   # noqa: E731
     s = StaticRemover(0.02, room.copy())
     s.normalise = True
     g = dev.BurstGate()
@@ -155,10 +165,7 @@ def test_a_slow_fan_leaves_no_ghost_and_the_slow_hold_ends(monkeypatch):
     from bladesonar.answer import Direction
     rng = np.random.default_rng(5)
     L = 96
-    x_ax = np.linspace(0.0, 1.0, L)
-    room = np.sin(np.linspace(0.0, 40.0, L)) * np.exp(-np.linspace(0.0, 3.0, L))
-    blade = lambda c: 0.5 * np.exp(-0.5 * ((x_ax - c) / 0.02) ** 2)   # noqa: E731
-    shape = blade(0.55) / np.linalg.norm(blade(0.55))
+    room, blade, shape = _room_and_blade(L)
     turning, slow = _decision(Direction.SAME, 0.5), _decision(Direction.SAME, 0.08)
 
     def run(slow_pulses: float) -> tuple[float, float, list[bool], list[bool]]:
@@ -211,10 +218,7 @@ def test_a_rest_after_a_long_slow_spin_down_is_held():
     from bladesonar.answer import Direction
     rng = np.random.default_rng(7)
     L = 96
-    x_ax = np.linspace(0.0, 1.0, L)
-    room = np.sin(np.linspace(0.0, 40.0, L)) * np.exp(-np.linspace(0.0, 3.0, L))
-    blade = lambda c: 0.5 * np.exp(-0.5 * ((x_ax - c) / 0.02) ** 2)   # noqa: E731
-    shape = blade(0.55) / np.linalg.norm(blade(0.55))
+    room, blade, shape = _room_and_blade(L)
     s = StaticRemover(0.02, room.copy())
     g = dev.BurstGate()
     hold = RestHold(turning_hz=0.15, max_pulses=10_000, slow_pulses=200)

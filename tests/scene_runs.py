@@ -1,0 +1,30 @@
+"""A random scene's reference learned as the daemon learns it, and a schedule of that
+scene rendered for analyze (tests of traced held-out scenes)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bladesonar import config
+from bladesonar.reference_build import Reference, build_reference
+from bladesonar.sim import random_scene
+from bladesonar.sim.render import simulate
+
+
+def learned_and_rendered(seed: int, schedule: str, seconds: float
+                         ) -> tuple[random_scene.SceneDraw, config.Config, Reference,
+                                    np.ndarray]:
+    """Scene ``seed``'s draw, its config, its reference (20 s at the reference speed, at
+    the scene's SNR, drift and nuisances) and ``schedule`` rendered over ``seconds``
+    with another noise draw (seed + 7)."""
+    dr = random_scene.draw(seed)
+    cfg = config.replace(config.Config(), scene={"blades": dr.blades})
+    x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
+                    schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60", seed=seed,
+                    snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
+                    include_paths=False)
+    ref = build_reference(x, cfg, dr.ref_direction)
+    y, _ = simulate(dr.scene, cfg, seconds, schedule=schedule, seed=seed + 7,
+                    snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
+                    include_paths=False)
+    return dr, cfg, ref, y
