@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from scipy.signal import find_peaks
 
 from bladesonar.io.config_file import load_config
 from loopback import ROOT, RoomProcess, bladesonar_cmd, require_alsa, write_config
@@ -297,11 +298,16 @@ class Graph:
             assert time.monotonic() < deadline, "the room did not end its last session"
             time.sleep(0.1)
 
-    def run(self, seconds: float, actions: tuple[tuple[float, Callable[[], None]], ...] = ()
-            ) -> Run:
-        """The daemon on this graph, once the room is idle."""
+    def run(self, seconds: float, actions: tuple[tuple[float, Callable[[], None]], ...] = (),
+            dump: Path | None = None) -> Run:
+        """The daemon on this graph, once the room is idle; with ``dump``, what it
+        captured is written there (tools/feed_dump)."""
         self.wait_idle()
-        return run_daemon(self.cfg, self.server.env, seconds, actions)
+        env = self.server.env
+        if dump is not None:
+            env = {**env, "FEED_DUMP_DIR": str(dump), "PYTHONPATH": ":".join(
+                p for p in (str(ROOT / "tools" / "feed_dump"), env.get("PYTHONPATH")) if p)}
+        return run_daemon(self.cfg, env, seconds, actions)
 
     def last_session(self) -> dict[str, float]:
         return sessions(self.truth)[-1]
@@ -406,7 +412,22 @@ def test_daemon_at_48k_answers_like_the_alsa_loopback(graph48, alsa48):
                                                 "chosen": "pipewire", "path": "pipewire-alsa"}
 
 
-def test_a_quantum_change_mid_run_changes_nothing_a_subscriber_sees(graph48, alsa48):
+def capture_disruptions(x: np.ndarray, pri: int) -> tuple[int, int, list[int]]:
+    """Latency steps and missing pulses in a raw capture, read off its direct-coupling
+    peaks alone (no aligner): (steps, pulses missing, the intervals between peaks that
+    were not one PRI). The couplings stand 10 times above the echoes in this room."""
+    a = np.abs(np.asarray(x, dtype=np.float64))
+    peaks, _ = find_peaks(a, height=0.25 * float(a.max()), distance=pri // 4)
+    gaps = np.diff(peaks)
+    whole = np.rint(gaps / pri).astype(int)
+    off = gaps - whole * pri
+    odd = (np.abs(off) > 2) | (whole != 1)
+    return int(np.count_nonzero(np.abs(off) > 2)), int(np.maximum(whole - 1, 0).sum()), \
+        [int(g) for g in gaps[odd]]
+
+
+def test_a_quantum_change_mid_run_changes_nothing_a_subscriber_sees(graph48, alsa48,
+                                                                     tmp_path):
     """The graph's buffer size is forced from 1024 to 256 frames and back while the
     daemon tracks, before the reversal: both streams stay on the graph's clock, no xrun,
     the same single event and rate. The room's own delay stays put (its streams lock
@@ -415,20 +436,24 @@ def test_a_quantum_change_mid_run_changes_nothing_a_subscriber_sees(graph48, als
     whose window holds the step, and no more."""
     srv = graph48.server
     run = graph48.run(RUN_S, actions=((4.0, lambda: srv.force_quantum(256)),
-                                      (8.0, lambda: srv.force_quantum(0))))
+                                      (8.0, lambda: srv.force_quantum(0))), dump=tmp_path)
     check_answer(run)
     st = run.last_stats()
     check_no_loss(st)
     assert st["audio_restarts"] == 0
-    jumps = st["audio"]["sound_server"]["stream_latency_jumps"]
-    assert jumps >= 1                                      # the change was seen
-    # one pulse per step (the aligner finds the next edge within half a PRI of where it
-    # was due), not the PULSES_PER_JUMP a re-acquisition may cost elsewhere; and one more
-    # at most: 5 for 4 steps and 4 for 3 were seen in two of about ten whole-suite runs
-    # (2026-11-29). Not traced; a candidate is the whole step of -768 samples when the
-    # quantum goes down at once, beyond half the PRI (706), whose pulses are then
-    # numbered one off (docs/audio.md, "Why a step costs a pulse")
-    assert st["dropped_pulses"] <= jumps + 1, st
+    assert st["audio"]["sound_server"]["stream_latency_jumps"] >= 1   # the change was seen
+    # What the daemon captured, read apart from it: each latency step costs the pulse
+    # whose window holds it (docs/audio.md, "Why a step costs a pulse"); a pulse that a
+    # busy graph left out of the played stream (the next one on time) costs itself and
+    # the pulse before it, which the aligner cannot tell clean (seen under load: a
+    # pulse missing, and two steps of one quantum, beside the quantum change's step)
+    dumps = sorted(tmp_path.glob("feed-*.npz"))
+    assert len(dumps) == 1, dumps
+    cap = np.load(dumps[0])
+    steps, missing, odd = capture_disruptions(cap["x"], pri_for(48000))
+    assert steps >= 1, odd                                 # the playback's step
+    assert st["dropped_pulses"] <= steps + 2 * missing, (st["dropped_pulses"], steps,
+                                                         missing, odd)
     off = off_alsa(run, graph48.last_session(), alsa48)
     # the pulses dropped at the latency steps move no later decision (the daemon decides
     # on pulse numbers; counted over valid pulses, they moved every one, +0.42 s here),
