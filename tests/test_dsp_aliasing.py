@@ -186,7 +186,7 @@ def test_a_symmetric_pattern_leaves_the_direction_to_chance():
 
 def _watch_on(table: np.ndarray, rate: float, *, mirror: bool, seed: int = 0,
               n: int = 340, watch: aliasing.AliasWatch | None = None, k0: int = 0,
-              seen: list[tuple[int, bool]] | None = None
+              seen: list[tuple[int, bool]] | None = None, resting: bool = False
               ) -> tuple[aliasing.AliasWatch, Any]:
     """The alias watch as the analysis runs it, beside a track that follows the line of
     pulses at ``rate`` or (``mirror``) its mirror image, as a track that locked on the
@@ -215,7 +215,7 @@ def _watch_on(table: np.ndarray, rate: float, *, mirror: bool, seed: int = 0,
             tr.x = np.array([(tr.x[0] + tr.x[1] * (k0 + i - tr.last_k)) % 1.0, tr.x[1]])
         tr.last_k = k0 + i
         watch.push(k0 + i, dist[i], float(tr.x[0]))
-        watch.check(tr, accel=0.0, moving=lambda: True)
+        watch.check(tr, accel=0.0, moving=lambda: True, resting=resting)
         if seen is not None:
             seen.append((tr.relocks, watch.mirror_checked(tr) and not watch.mirror_note))
     return watch, tr
@@ -248,6 +248,31 @@ def test_a_symmetric_room_puts_the_direction_in_doubt_and_new_tracks_wait():
     watch, _ = _watch_on(_table(visible=None), 0.03, mirror=False, n=60, watch=watch,
                          k0=2 * 10 ** 4)
     assert watch.mirror_note == ""
+
+
+def test_a_start_from_rest_in_a_doubtful_room_waits_for_its_own_check():
+    """A start's first answers come while the rest's static estimate is still held, when
+    the analysis tells the watch the fan rests. In a room where directions have been in
+    doubt the new track is 'to be confirmed' then too (the old code cleared every note at
+    rest, and spent held-out 1700009 answered three starts the wrong way at once), and
+    the answer still says the fan turns, so that the rest's estimate is let go and the
+    track's own check can run. In a room never in doubt nothing waits."""
+    watch = next(w for w, _ in (_watch_on(_symmetric_table(), 0.03, mirror=False, seed=s)
+                                for s in range(6)) if w.doubtful)
+    watch, _ = _watch_on(_table(visible=None), 0.03, mirror=False, n=4, watch=watch,
+                         k0=10 ** 4, resting=True)
+    assert watch.mirror_note.startswith("direction to be confirmed")
+    d = decide(rate=0.03, rate_std=1e-4, locked=True, accepted=1.0, quality=0.5,
+               motion=3.0, scene=100.0, ref_cycles_per_pulse=0.03, ref_rate_hz=0.5,
+               ref_direction="ccw", alias_gap=0.0, alias_note=watch.mirror_note,
+               at_rest=True)
+    assert d.direction == "unknown" and d.turning
+    # the same track once it moves on: its own check clears it
+    watch, _ = _watch_on(_table(visible=None), 0.03, mirror=False, n=60, watch=watch,
+                         k0=10 ** 4 + 4)
+    assert watch.mirror_note == ""
+    fresh, _ = _watch_on(_table(visible=None), 0.03, mirror=False, n=4, resting=True)
+    assert not fresh.doubtful and fresh.mirror_note == ""
 
 
 def test_a_steady_runs_windows_add_up_where_one_window_is_too_weak():

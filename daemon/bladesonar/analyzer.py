@@ -955,7 +955,7 @@ class PulseAnalyzer:
         # decided at a clear rate: held on until a published turn released it, the check
         # a sudden turn waits for never ran, and the turn was never published (spent
         # held-out 700002: a reversal through zero held `unknown` for 20 s and missed)
-        seen_turning = d is not None and d.direction in WAYS \
+        seen_turning = d is not None and (d.direction in WAYS or d.turning) \
             and (d.rate_hz or 0.0) >= self.rest_hold.turning_hz
         resting = (self.static.frozen and not seen_turning) or self._quiet or (
             d is not None and d.direction == Direction.STOPPED)

@@ -31,6 +31,7 @@ from ..answer import (
     Decision as Decision,  # (transitions.py's import, until it takes it from answer)
 )
 from ..answer import Direction, RateState
+from .aliasing import TO_BE_CONFIRMED
 from .fingerprint import envelope_features
 from .stats import median
 
@@ -545,8 +546,9 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     # pulses, and a held static estimate turns it into a line near 1/20 blade period per
     # pulse: 0.43 Hz 'reversed' from a fan at rest), and a fan that starts again moves
     # its echoes for the meter to see.
-    moving = turning and conf >= s.min_confidence and rate_hz >= 2.0 * s.rate_floor_hz \
-        and abs(rate) >= 4.0 * rate_std and not at_rest
+    clear = turning and conf >= s.min_confidence and rate_hz >= 2.0 * s.rate_floor_hz \
+        and abs(rate) >= 4.0 * rate_std
+    moving = clear and not at_rest
     m, thr = (still, still_thr) if math.isfinite(still) else (motion, s.motion_threshold)
     quiet = math.isfinite(m) and m < thr
     if quiet and not moving:
@@ -572,8 +574,12 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     if s.alias_margin > 0 and alias_gap < s.alias_margin:
         # several alias rates fit about equally: the sign or the rate could be either
         conf = min(conf, s.min_confidence) * max(alias_gap, 0.0) / s.alias_margin
+        # a start in a room where directions have been in doubt turns all the same: the
+        # rest's held estimate is let go and the track's mirror check runs (the meter
+        # saw the change, or a quiet one would have answered above)
         return Decision(Direction.UNKNOWN, None, rel, rate_hz, rate_hz * 60.0, conf, alias_note,
-                        tuple(warnings), turning=moving)
+                        tuple(warnings),
+                        turning=moving or (clear and alias_note == TO_BE_CONFIRMED))
     if alias_note:
         warnings.append(alias_note)
     if conf < s.min_confidence:
