@@ -1053,6 +1053,35 @@ def test_a_speed_published_bounds_new_lines_above_and_below(reference):
     assert an.tracker.rate_least == 0.0
 
 
+def test_a_speed_whose_direction_alone_is_in_doubt_bounds_new_lines(reference):
+    """A fan published as turning with its direction in doubt (its mirror image fits as
+    well: the same speed either way) bounds new lines like a known direction, by the
+    same closed forms; a speed in doubt itself (an alias rate) does not. Spent held-out
+    1700009, a room whose directions stayed in doubt for a whole run: unbounded, the
+    tracker took a line at 1.4 Hz as the fan came to rest, and the stop came 4.4 s late
+    instead of 2.2 s."""
+    from bladesonar.analyzer import new_analyzer
+    an = new_analyzer(config.Config(), reference)
+    hz = float(reference.meta["rate_hz"]) / reference.cycles_per_pulse
+
+    def bound_at(t):
+        an.rate_bound.step(t, an.state, an.tracker)
+        return an.tracker.rate_bound * hz
+
+    an.state = _doubt(0.35)
+    bound_at(10.0)
+    assert bound_at(12.0) == pytest.approx(0.35 + 0.1)
+    assert bound_at(13.0) == pytest.approx(0.35 + 0.1)
+    an.state = Decision(Direction.UNKNOWN, None, None, None, None, 0.0, "weak evidence")
+    assert bound_at(14.0) == pytest.approx(0.35 + 0.3 * 1.0 + 0.1)
+    fresh = new_analyzer(config.Config(), reference)
+    fresh.state = Decision(Direction.UNKNOWN, None, None, 0.35, None, 0.3,
+                           "rate ambiguous: rate near 1/3 blade period per pulse",
+                           turning=True)
+    fresh.rate_bound.step(10.0, fresh.state, fresh.tracker)
+    assert fresh.tracker.rate_bound == math.inf
+
+
 def _walk(seq, prf=34.0):
     """Step a fresh machine (confirm 0.5 s, 0.3 Hz/s) through ``seq``; (events as (kind,
     pulse), published directions, the machine)."""

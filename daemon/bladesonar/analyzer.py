@@ -390,7 +390,13 @@ class RateBound:
         if st is None or st.direction != self._known_dir:
             self._known_dir = None if st is None else st.direction
             self._known_t = t_s
-        if st is not None and st.direction in (*WAYS, Direction.STOPPED):
+        # a fan whose direction alone is in doubt turns at a known speed all the same: in
+        # a room where directions stay in doubt a whole run was unbounded, and as it came
+        # to rest the tracker took a line at 1.4 Hz that held the stop back 2 s (spent
+        # held-out 1700009)
+        if st is not None and (st.direction in (*WAYS, Direction.STOPPED) or (
+                st.turning and st.rate_hz is not None
+                and aliasing.doubts_direction_only(st.reason))):
             v = float(st.rate_hz or 0.0)
             if v <= 3.0 * self.floor_hz or t_s - self._known_t >= ANCHOR_TRUST_S:
                 self._anchor, self._untrusted = (t_s, v), None

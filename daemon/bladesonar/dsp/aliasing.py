@@ -82,6 +82,12 @@ TO_BE_CONFIRMED = ("direction to be confirmed: in this room the echoes of the fa
 MIRROR_STILL_STEP = 0.25
 
 
+def doubts_direction_only(note: str) -> bool:
+    """Whether an answer held back with ``note`` doubts only which way the fan turns (its
+    mirror image fits as well, at the same speed), not how fast (an alias rate)."""
+    return note.startswith(("direction in doubt", "direction to be confirmed"))
+
+
 def near_fractions(rate: float, *, span: int, rate_std: float = 0.0, max_q: int = MAX_Q,
                    min_q: int = 2, zero: bool = True, accel: float = 0.0) -> list[Fraction]:
     """The fractions p/q (``min_q <= q <= max_q``, smallest q first) that ``rate`` (cycles
