@@ -390,10 +390,10 @@ class RateBound:
         if st is None or st.direction != self._known_dir:
             self._known_dir = None if st is None else st.direction
             self._known_t = t_s
-        # a fan whose direction alone is in doubt turns at a known speed all the same: in
-        # a room where directions stay in doubt a whole run was unbounded, and as it came
-        # to rest the tracker took a line at 1.4 Hz that held the stop back 2 s (spent
-        # held-out 1700009)
+        # a speed published with only its direction in doubt is known all the same (the
+        # mirror image turns at the same speed): unbounded, a run in doubt let the
+        # tracker take a far faster line as the fan came to rest, which held the stop
+        # back (docs/dynamics.md, "The rate bound")
         if st is not None and (st.direction in (*WAYS, Direction.STOPPED) or (
                 st.turning and st.rate_hz is not None
                 and aliasing.doubts_direction_only(st.reason))):

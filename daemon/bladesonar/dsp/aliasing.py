@@ -458,7 +458,7 @@ class AliasWatch:
             # a fan at rest has no direction to doubt; but in a doubtful room the track a
             # start brings waits for its own check like any new track: its first answers
             # come while the rest's static estimate is still held, when the check is not
-            # run (spent held-out 1700009: three starts answered the wrong way at once)
+            # run, and unchecked they were answered the wrong way (docs/dynamics.md)
             self.mirror_note = TO_BE_CONFIRMED \
                 if self.doubtful and tr.identity != self._mirror_ok else ""
         elif self._check_mirror(tr):
