@@ -82,6 +82,7 @@ def test_one_visible_angle_in_five_is_ambiguous_not_a_confident_alias():
                scene=100.0, ref_cycles_per_pulse=0.05, ref_rate_hz=0.5, ref_direction="ccw",
                alias_gap=v.gap, alias_note="rate ambiguous: test")
     assert d.direction == "unknown" and d.reason == "rate ambiguous: test"
+    assert not d.direction_doubt        # (its speed is in doubt too: no rate bound on it)
     assert d.confidence < 0.5 and d.relative_rate == pytest.approx(-4.0)
 
 
@@ -241,6 +242,7 @@ def test_a_symmetric_room_puts_the_direction_in_doubt_and_new_tracks_wait():
                motion=3.0, scene=100.0, ref_cycles_per_pulse=0.03, ref_rate_hz=0.5,
                ref_direction="ccw", alias_gap=0.0, alias_note=watch.mirror_note)
     assert d.direction == "unknown" and d.reason.startswith("direction in doubt")
+    assert d.direction_doubt            # (the speed is known: the rate bound anchors on it)
     # the same watch, a new track in an asymmetric pattern: held at first, then cleared
     watch, _ = _watch_on(_table(visible=None), 0.03, mirror=False, n=8, watch=watch,
                          k0=10 ** 4)
@@ -266,7 +268,7 @@ def test_a_start_from_rest_in_a_doubtful_room_waits_for_its_own_check():
                motion=3.0, scene=100.0, ref_cycles_per_pulse=0.03, ref_rate_hz=0.5,
                ref_direction="ccw", alias_gap=0.0, alias_note=watch.mirror_note,
                at_rest=True)
-    assert d.direction == "unknown" and d.turning
+    assert d.direction == "unknown" and d.turning and d.direction_doubt
     # the same track once it moves on: its own check clears it
     watch, _ = _watch_on(_table(visible=None), 0.03, mirror=False, n=60, watch=watch,
                          k0=10 ** 4 + 4)

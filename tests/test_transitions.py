@@ -300,7 +300,7 @@ def test_state_machine_needs_confirmation_and_fires_between_known_states():
 def _doubt(rate=0.4):
     """A fan turning at ``rate`` whose direction is in doubt (its mirror fits as well)."""
     return Decision(Direction.UNKNOWN, None, None, rate, None, 0.3, "direction in doubt",
-                    turning=True)
+                    turning=True, direction_doubt=True)
 
 
 def test_a_fan_turning_either_way_starts_and_stops_in_a_doubtful_room():

@@ -395,8 +395,7 @@ class RateBound:
         # tracker take a far faster line as the fan came to rest, which held the stop
         # back (docs/dynamics.md, "The rate bound")
         if st is not None and (st.direction in (*WAYS, Direction.STOPPED) or (
-                st.turning and st.rate_hz is not None
-                and aliasing.doubts_direction_only(st.reason))):
+                st.turning and st.rate_hz is not None and st.direction_doubt)):
             v = float(st.rate_hz or 0.0)
             if v <= 3.0 * self.floor_hz or t_s - self._known_t >= ANCHOR_TRUST_S:
                 self._anchor, self._untrusted = (t_s, v), None

@@ -135,6 +135,10 @@ class Decision:
     """The fan turns by this window's evidence, whichever way: set with a direction, and
     on an ``unknown`` whose only doubt is the direction (a confident track well above
     the floor, in doubt because its mirror image or an alias rate fits as well)."""
+    direction_doubt: bool = False
+    """An ``unknown`` whose only doubt is which way the fan turns: its mirror image fits
+    as well, at the same speed (``direction in doubt``, ``direction to be confirmed``),
+    not an alias rate. Its speed is known all the same (the rate bound anchors on it)."""
     mirror_checked: bool = False
     """The track's line has fitted the reference clearly better than its mirror image
     (:meth:`aliasing.AliasWatch.mirror_checked`): its direction is no mirror lock."""

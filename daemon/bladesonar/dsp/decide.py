@@ -31,7 +31,7 @@ from ..answer import (
     Decision as Decision,  # (transitions.py's import, until it takes it from answer)
 )
 from ..answer import Direction, RateState
-from .aliasing import TO_BE_CONFIRMED
+from .aliasing import TO_BE_CONFIRMED, doubts_direction_only
 from .fingerprint import envelope_features
 from .stats import median
 
@@ -579,7 +579,8 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         # saw the change, or a quiet one would have answered above)
         return Decision(Direction.UNKNOWN, None, rel, rate_hz, rate_hz * 60.0, conf, alias_note,
                         tuple(warnings),
-                        turning=moving or (clear and alias_note == TO_BE_CONFIRMED))
+                        turning=moving or (clear and alias_note == TO_BE_CONFIRMED),
+                        direction_doubt=doubts_direction_only(alias_note))
     if alias_note:
         warnings.append(alias_note)
     if conf < s.min_confidence:
