@@ -295,6 +295,27 @@ def test_a_steady_runs_windows_add_up_where_one_window_is_too_weak():
         assert not any(ok for moves, ok in seen if moves == 0), seed
 
 
+def test_a_runs_pooled_evidence_against_its_track_moves_it_to_the_mirror():
+    """Wall echoes so weak that one window seldom reads MIRROR_Z against a track on the
+    mirror line: the run's pooled windows do, and they move it as two such windows
+    would (the old code left 7 of these 16 tracks on the mirror line for 16 windows;
+    spent held-out 1800002 published the mirror for 12 s while its path read -0.7 to
+    -2.9 and its fitted line pooled -6.3). A track on the true line in the same rooms,
+    and in a room whose echoes are their own mirror image, is never moved."""
+    n = 170 * 16
+    for scale in (0.005, 0.003):
+        table = _symmetric_table() + scale * _table(visible=None)
+        for seed in range(8):
+            watch, tr = _watch_on(table, 0.03, mirror=True, seed=seed, n=n)
+            assert watch.mirror_moves == 1 and tr.x is not None, (scale, seed)
+            assert float(tr.x[1]) == pytest.approx(0.03, rel=0.05), (scale, seed)
+    for scale in (0.005, 0.0):
+        table = _symmetric_table() + scale * _table(visible=None)
+        for seed in range(8):
+            watch, _ = _watch_on(table, 0.03, mirror=False, seed=seed, n=n)
+            assert watch.mirror_moves == 0, (scale, seed)
+
+
 def test_the_mirror_evidence_of_six_batch_means_is_read_on_the_normal_scale():
     """A 5 s window holds about six blade-period batch means, and their t has five degrees
     of freedom: t 3 is one window in 70 on noise alone (Student's t table: the 0.99

@@ -589,9 +589,14 @@ class AliasWatch:
             elif doubt:                 # the room's windows stay in doubt: new tracks wait
                 self.mirror_doubt += forget * (1.0 - self.mirror_doubt)
             return False
-        if z <= -MIRROR_Z or doubt:
+        # the run's pooled evidence against the track counts as a window's would: the
+        # track's path follows its own matches and leans toward its own line, so a
+        # track on the mirror line read -0.7 to -2.9 on its path for 12 s of steady
+        # turning while its fitted line pooled -6.3 (held-out 1800002, then spent)
+        worst = min(z, pooled)
+        if worst <= -MIRROR_Z or doubt:
             self.mirror_doubt += forget * (1.0 - self.mirror_doubt)
-        if z <= -MIRROR_Z:
+        if worst <= -MIRROR_Z:
             if self._mirror_seen == ident:
                 # the mirror image of the line at the last pulse, rate reversed
                 tr.relock(-w, mirror_offset - float(path[-1]), int(k[-1]))
@@ -604,7 +609,7 @@ class AliasWatch:
             r0 = self.ref_cycles_per_pulse
             self.mirror_note = (f"direction in doubt: the reversed path (relative rate "
                                 f"{-w / r0:+.3f}) fits the reference table better than the "
-                                f"track's {w / r0:+.3f} (z {z:.1f}), to be confirmed")
+                                f"track's {w / r0:+.3f} (z {worst:.1f}), to be confirmed")
         elif doubt:
             self._mirror_ok = None
             self.mirror_note = (f"direction in doubt: the fan's echoes turned either way fit "
