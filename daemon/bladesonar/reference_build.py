@@ -17,6 +17,7 @@ from typing import Any, TypedDict
 
 import numpy as np
 
+from .answer import significant
 from .config import AnalysisSettings, Config
 from .dsp import aliasing
 from .dsp import device as dev
@@ -128,7 +129,12 @@ class Reference:
                 "pulses", "dropped_pulses", "direction", "phase_bins", "cycles_per_pulse",
                 "target_range_m", "line_snr", "direction_contrast", "features", "device",
                 "warnings")
-        return {k: m[k] for k in keys if k in m}
+        out = {k: m[k] for k in keys if k in m}
+        if "cycles_per_pulse" in out:
+            # to 12 digits: its last ones differ between CPUs (a sum's order in numpy's
+            # vector code), and the file keeps every digit
+            out["cycles_per_pulse"] = significant(float(out["cycles_per_pulse"]), 12)
+        return out
 
 
 def depends_on(cfg: Config) -> dict[str, Any]:
