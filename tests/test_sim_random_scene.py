@@ -5,6 +5,7 @@ on the drawn geometry itself rather than on the drawing code's own numbers."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -174,3 +175,35 @@ def test_a_reverberant_draw_keeps_the_room_and_adds_a_long_tail():
         assert -6.0 <= r.nuisances.reverb_db <= 0.0
         assert r.nuisances.agc_db == d.nuisances.agc_db
         assert rs.reverberant(d) == r          # drawn from the seed
+
+
+@pytest.mark.parametrize("seed", SEEDS[::4])
+def test_a_device_moved_as_the_place_warning_asks_keeps_the_room_and_the_day(seed):
+    # `reference` warns that a place whose echoes cannot tell the fan's directions apart
+    # should be left for one nearer a wall, further off the fan's axis; the sweep's user
+    # does so (tools/days.py): the new place follows the advice (both halves, or one
+    # where no place in reach follows both) inside the scene's own envelope, and nothing
+    # else about the room, the fan or the day changes
+    dr = rs.draw(seed)
+    s = dr.scene
+    V = np.asarray(s.vertices)
+    C, S0 = np.asarray(s.fan_centre), np.asarray(s.sensor)
+    for attempt in range(3):
+        m = rs.moved(dr, attempt)
+        assert m == rs.moved(dr, attempt)            # a seed and attempt name one place
+        if m is dr:                                  # no place in reach follows the advice
+            continue
+        S = np.asarray(m.scene.sensor)
+        assert m.moved_from == (tuple(float(c) for c in S0),)
+        assert _wall_distance(S, V) >= 0.25 - 1e-9
+        dist = float(np.hypot(*(S - C)))
+        assert s.tip_radius_m + 0.5 - 1e-9 <= dist <= 4.0 + 1e-9
+        nearer = _wall_distance(S, V) < _wall_distance(S0, V)
+        further = dist > float(np.hypot(*(S0 - C)))
+        assert nearer or further
+        assert dataclasses.replace(m.scene, sensor=s.sensor) == s
+        assert dataclasses.replace(m, scene=s, moved_from=()) == dr
+        assert m.schedule(600.0) == dr.schedule(600.0)
+        assert m.describe()["moved_from"] == [[round(c, 2) for c in S0]]
+    places = {rs.moved(dr, a).scene.sensor for a in range(3)}
+    assert len(places) > 1 or rs.moved(dr, 0) is dr  # each attempt a place of its own

@@ -39,6 +39,8 @@ DRIFT_PPM = 40.0
 #: The fan speed a user picks when the reference asks for another one (commensurate
 #: with the PRF): a few percent faster, as the reference's words say.
 OTHER_SPEED = 1.04
+#: What ``reference`` warns of a place that cannot tell the fan's directions apart.
+PLACE_WARNING = "turned either way are nearly alike"
 HERE = Path(__file__).resolve().parent.parent
 
 
@@ -65,8 +67,8 @@ def _half_volume(cfg: config.Config) -> config.Config:
     return config.replace(cfg, waveform={"amplitude": cfg.waveform.amplitude / 2})
 
 
-def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2
-               ) -> tuple[config.Config, Schedule, Simulator, LiveAnalyzer,
+def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2,
+               stay: bool = False) -> tuple[config.Config, Schedule, Simulator, LiveAnalyzer,
                           random_scene.SceneDraw | random_scene.DayDraw3D]:
     """A random scene's day (sim/random_scene.py; ``dims`` 3: a 3-D box room with pitched
     blades, ``draw_day_3d``, rendered in the same streamed chunks): the reference is
@@ -76,7 +78,9 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2
     with the PRI the warning names; when echoes clip (warned, or refused for too few
     pulses left), at half the playback volume; when
     the speed is commensurate with the PRF (warned, or refused), at another fan speed,
-    OTHER_SPEED times the last."""
+    OTHER_SPEED times the last; when the place cannot tell the fan's directions apart
+    (warned), with the device moved as the warning asks (``random_scene.moved``; 2-D
+    scenes, and not with ``stay``: the device left where it was drawn)."""
     cfg0 = config.Config()
     if dims not in (2, 3):
         raise ValueError(f"dims {dims!r}: give 2 (floor-plan scenes) or 3 (box rooms)")
@@ -119,6 +123,12 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2
             cfg = _half_volume(cfg)
         elif any("another fan speed" in w for w in ref.meta["warnings"]):
             rate_hz *= OTHER_SPEED
+        elif not stay and isinstance(dr, random_scene.SceneDraw) and any(
+                PLACE_WARNING in w for w in ref.meta["warnings"]):
+            there = random_scene.moved(dr, len(dr.moved_from))
+            if there is dr:
+                break
+            dr = there
         else:
             break
     assert ref is not None

@@ -82,6 +82,8 @@ class SceneDraw:
     ref_direction: str
     ceiling_m: float
     nuisances: Nuisances = field(default_factory=Nuisances)
+    moved_from: tuple[tuple[float, float], ...] = ()
+    """The places the device stood before (:func:`moved`), first to last."""
 
     @property
     def split(self) -> str:
@@ -107,7 +109,40 @@ class SceneDraw:
                 "drift_ppm": round(self.drift_ppm, 1),
                 "rates_hz": [round(r, 3) for r in self.rates_hz],
                 "reference": f"{self.ref_direction}:{self.ref_rate_hz:.3f}",
-                "nuisances": self.nuisances.active}
+                "nuisances": self.nuisances.active,
+                **({"moved_from": [[round(c, 2) for c in p] for p in self.moved_from]}
+                   if self.moved_from else {})}
+
+
+def moved(dr: SceneDraw, attempt: int = 0) -> SceneDraw:
+    """The day of ``dr`` with the device put where ``reference`` asks when the place
+    cannot tell the fan's directions apart (its warning, ``direction_contrast`` under 2):
+    nearer a wall and further off the fan's axis, in the same room, within the reach and
+    clearances of :func:`draw`. A user does not know where the telling echoes are, so the
+    place is drawn (from the seed and ``attempt``) among those that follow the advice;
+    when none does, among those that follow half of it; when none is in reach at all,
+    ``dr`` as it is."""
+    s = dr.scene
+    V = np.asarray(s.vertices)
+    old = np.asarray(s.sensor)
+    centre = np.asarray(s.fan_centre)
+    tip = s.blade_length_m + s.hub_radius_m
+    wall, axis = _clearance(old, V), float(np.hypot(*(old - centre)))
+    rng = np.random.default_rng([dr.seed, 3, attempt])
+
+    def reach(p: np.ndarray) -> bool:
+        return tip + TIP_CLEARANCE_M <= math.dist(p, centre) <= MAX_RANGE_M
+
+    both = _point(rng, V, 0.25, lambda p: reach(p) and _clearance(p, V) < wall
+                  and math.dist(p, centre) > axis)
+    place = both if both is not None else _point(
+        rng, V, 0.25, lambda p: reach(p) and (_clearance(p, V) < wall
+                                             or math.dist(p, centre) > axis))
+    if place is None:
+        return dr
+    return dataclasses.replace(
+        dr, scene=dataclasses.replace(s, sensor=(float(place[0]), float(place[1]))),
+        moved_from=(*dr.moved_from, (float(old[0]), float(old[1]))))
 
 
 def _room(rng: np.random.Generator) -> list[list[float]]:
