@@ -240,7 +240,8 @@ def test_a_symmetric_room_puts_the_direction_in_doubt_and_new_tracks_wait():
     assert doubted >= 5
     d = decide(rate=0.03, rate_std=1e-4, locked=True, accepted=1.0, quality=0.5,
                motion=3.0, scene=100.0, ref_cycles_per_pulse=0.03, ref_rate_hz=0.5,
-               ref_direction="ccw", alias_gap=0.0, alias_note=watch.mirror_note)
+               ref_direction="ccw", direction_note=watch.mirror_note,
+               awaiting_check=watch.awaiting_check)
     assert d.direction == "unknown" and d.reason.startswith("direction in doubt")
     assert d.direction_doubt            # (the speed is known: the rate bound anchors on it)
     # the same watch, a new track in an asymmetric pattern: held at first, then cleared
@@ -266,7 +267,8 @@ def test_a_start_from_rest_in_a_doubtful_room_waits_for_its_own_check():
     assert watch.mirror_note.startswith("direction to be confirmed")
     d = decide(rate=0.03, rate_std=1e-4, locked=True, accepted=1.0, quality=0.5,
                motion=3.0, scene=100.0, ref_cycles_per_pulse=0.03, ref_rate_hz=0.5,
-               ref_direction="ccw", alias_gap=0.0, alias_note=watch.mirror_note,
+               ref_direction="ccw", direction_note=watch.mirror_note,
+               awaiting_check=watch.awaiting_check,
                at_rest=True)
     assert d.direction == "unknown" and d.turning and d.direction_doubt
     # the same track once it moves on: its own check clears it

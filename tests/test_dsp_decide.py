@@ -70,12 +70,15 @@ def test_direction_and_absolute_rotation():
 def test_a_doubt_about_the_direction_alone_still_says_the_fan_turns():
     """A confident track whose mirror image fits as well (alias gap 0) has no direction,
     but it is turning; a weak track, a slow one or a fan seen at rest is not."""
-    d = _common(alias_gap=0.0, alias_note="direction in doubt")
-    assert (d.direction, d.turning) == ("unknown", True)
+    d = _common(direction_note="direction in doubt")
+    assert (d.direction, d.turning, d.direction_doubt) == ("unknown", True, True)
     assert abs(d.rate_hz - 0.5) < 1e-12 and d.reason == "direction in doubt"
+    # an alias rate's doubt is about the speed too
+    d = _common(alias_gap=0.0, alias_note="rate ambiguous")
+    assert (d.direction, d.direction_doubt) == ("unknown", False)
     assert _common(rate=0.05).turning and not _common(motion=1.01, rate=0.0).turning
     for weak in (dict(rate_std=0.05), dict(rate=0.008), dict(at_rest=True, still=1.01)):
-        d = _common(alias_gap=0.0, alias_note="direction in doubt", **weak)
+        d = _common(direction_note="direction in doubt", **weak)
         assert not d.turning, (weak, d)
 
 

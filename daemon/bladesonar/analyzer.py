@@ -1047,10 +1047,11 @@ class PulseAnalyzer:
                     ref_cycles_per_pulse=self.ref.cycles_per_pulse,
                     ref_rate_hz=float(self.ref.meta["rate_hz"]),
                     ref_direction=self.ref.meta.get("direction", "unknown"),
-                    alias_gap=0.0 if locked and self.aliases.mirror_note else
-                    self.aliases.verdict.gap if locked and self.aliases.verdict else math.inf,
-                    alias_note=(self.aliases.mirror_note or self.aliases.note) if locked
-                    else "",
+                    alias_gap=self.aliases.verdict.gap if locked and self.aliases.verdict
+                    else math.inf,
+                    alias_note=self.aliases.note if locked else "",
+                    direction_note=self.aliases.mirror_note if locked else "",
+                    awaiting_check=locked and self.aliases.awaiting_check,
                     settings=self._decide_settings)
         d = decide(**args)
         mean = self.window_rate()

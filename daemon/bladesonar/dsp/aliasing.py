@@ -82,12 +82,6 @@ TO_BE_CONFIRMED = ("direction to be confirmed: in this room the echoes of the fa
 MIRROR_STILL_STEP = 0.25
 
 
-def doubts_direction_only(note: str) -> bool:
-    """Whether an answer held back with ``note`` doubts only which way the fan turns (its
-    mirror image fits as well, at the same speed), not how fast (an alias rate)."""
-    return note.startswith(("direction in doubt", "direction to be confirmed"))
-
-
 def near_fractions(rate: float, *, span: int, rate_std: float = 0.0, max_q: int = MAX_Q,
                    min_q: int = 2, zero: bool = True, accel: float = 0.0) -> list[Fraction]:
     """The fractions p/q (``min_q <= q <= max_q``, smallest q first) that ``rate`` (cycles
@@ -428,6 +422,12 @@ class AliasWatch:
         """Whether track ``tr``'s line has fitted the table clearly better than its
         mirror line (``MIRROR_Z``)."""
         return tr.locked and self._mirror_ok is not None and self._mirror_ok == tr.identity
+
+    @property
+    def awaiting_check(self) -> bool:
+        """Whether the track's direction waits for its own check, being new in a room
+        where directions have been in doubt (``mirror_note`` is ``TO_BE_CONFIRMED``)."""
+        return self.mirror_note == TO_BE_CONFIRMED
 
     @property
     def doubtful(self) -> bool:

@@ -31,7 +31,6 @@ from ..answer import (
     Decision as Decision,  # (transitions.py's import, until it takes it from answer)
 )
 from ..answer import Direction, RateState
-from .aliasing import TO_BE_CONFIRMED, doubts_direction_only
 from .fingerprint import envelope_features
 from .stats import median
 
@@ -464,7 +463,8 @@ def _normal_cdf(x: float) -> float:
 def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quality: float,
            motion: float, scene: float, ref_cycles_per_pulse: float, ref_rate_hz: float,
            ref_direction: str = "unknown", alias_gap: float = math.inf,
-           alias_note: str = "", still: float = math.nan, accel: float = 0.0,
+           alias_note: str = "", direction_note: str = "", awaiting_check: bool = False,
+           still: float = math.nan, accel: float = 0.0,
            changing_odds: float = 0.0, at_rest: bool = False, seen_still: bool = False,
            settings: DecideSettings = DecideSettings()) -> Decision:
     """Direction and rate of one window.
@@ -497,6 +497,17 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         Below ``alias_margin`` the rate is ambiguous (*unknown*, the note is the reason,
         the confidence scaled below ``min_confidence``); a note on a trusted rate becomes
         a warning (the track was moved off an alias).
+    direction_note : str
+        Why the track's direction is in doubt, from the mirror check
+        (:attr:`aliasing.AliasWatch.mirror_note`; empty: it is not): its mirror image
+        fits as well, at the same speed. The answer is *unknown* with this reason, its
+        speed known all the same (``Decision.direction_doubt``); it outranks
+        ``alias_note``.
+    awaiting_check : bool
+        The doubt is a new track's in a room where directions have been in doubt, waiting
+        for its own check (:attr:`aliasing.AliasWatch.awaiting_check`): a clear track then
+        says the fan turns even at rest, so that the rest's held estimate is let go and
+        the check can run.
     accel : float
         Tracked change of the rate per second (reference cycles per pulse, per second).
     changing_odds : float
@@ -571,18 +582,21 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         conf *= 0.5
     if not math.isfinite(motion):
         conf *= 0.5
-    if s.alias_margin > 0 and alias_gap < s.alias_margin:
-        # several alias rates fit about equally: the sign or the rate could be either
-        conf = min(conf, s.min_confidence) * max(alias_gap, 0.0) / s.alias_margin
+    # the mirror image fitting as well leaves no direction: a gap of 0
+    note = direction_note or alias_note
+    gap = 0.0 if direction_note else alias_gap
+    if s.alias_margin > 0 and gap < s.alias_margin:
+        # several alias rates (or a line and its mirror) fit about equally: the sign or
+        # the rate could be either
+        conf = min(conf, s.min_confidence) * max(gap, 0.0) / s.alias_margin
         # a start in a room where directions have been in doubt turns all the same: the
         # rest's held estimate is let go and the track's mirror check runs (the meter
         # saw the change, or a quiet one would have answered above)
-        return Decision(Direction.UNKNOWN, None, rel, rate_hz, rate_hz * 60.0, conf, alias_note,
-                        tuple(warnings),
-                        turning=moving or (clear and alias_note == TO_BE_CONFIRMED),
-                        direction_doubt=doubts_direction_only(alias_note))
-    if alias_note:
-        warnings.append(alias_note)
+        return Decision(Direction.UNKNOWN, None, rel, rate_hz, rate_hz * 60.0, conf, note,
+                        tuple(warnings), turning=moving or (clear and awaiting_check),
+                        direction_doubt=bool(direction_note))
+    if note:
+        warnings.append(note)
     if conf < s.min_confidence:
         return Decision(Direction.UNKNOWN, None, rel, rate_hz, rate_hz * 60.0, conf,
                         f"weak evidence (confidence {conf:.2f} < {s.min_confidence:g}; "
