@@ -103,6 +103,25 @@ def test_the_device_figures_tell_what_happened(scene):
     assert got["clipped_coupling"] > 0.95 and abs(got["range_scale"] - 346 / 343) < 2e-3
 
 
+@pytest.mark.parametrize("agc_db", [0.0, 1.1])
+def test_an_agc_is_normalised_and_a_loud_glinting_fan_is_not(agc_db):
+    """Ground truth from the simulator: held-out scene 2000008 (a 3-blade fan 2.9 m away
+    at 1.31 Hz whose glints move the pulses' gain; no AGC) read 1.03 dB of gain wander
+    and was scaled as if through an AGC, which skipped a third of its pulses as bursts.
+    With no AGC its reference is not normalised; through the smallest AGC the sweeps
+    draw (1.1 dB peak) it is."""
+    from bladesonar.analyzer import new_analyzer
+    from bladesonar.sim import random_scene
+    dr = random_scene.draw(2_000_008)
+    cfg = config.replace(config.Config(), scene={"blades": dr.blades})
+    nz = dataclasses.replace(dr.nuisances, agc_db=agc_db)
+    x, _ = simulate(dr.scene, cfg, 20.0, f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60",
+                    seed=dr.seed, snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=nz,
+                    include_paths=False)
+    ref = build_reference(x, cfg, dr.ref_direction)
+    assert new_analyzer(cfg, ref).static.normalise == (agc_db > 0), ref.meta["device"]
+
+
 def test_a_dry_quiet_device_shows_nothing(scene):
     x, _ = simulate(scene, config.Config(), 16.0, f"ccw:{REF_RATE}:16", snr_db=10.0, seed=1,
                     include_paths=False)
