@@ -398,6 +398,39 @@ def test_a_known_direction_is_carried_through_doubt_at_its_speed_until_the_fan_c
     assert [d for d, _ in run(gap + [_doubt(0.4)] * 5)[46:]] == ["unknown"] * 5
 
 
+def test_a_known_direction_is_carried_up_a_ramp_on_the_line_that_answered_it():
+    """Closed form, 34 pulses/s: a fan answered `same` at 0.4 Hz on one tracked line,
+    then in doubt on that line while it speeds up at 0.1 Hz/s to 1.2 Hz. The line was
+    followed without a break, and a fan turns the other way only through the floor: the
+    ramp is `same` all the way. The speeds above the band on another line (a new lock,
+    a move to an alias) are left unknown, as a line with no identity is; a window of the
+    line under the band (it slows down) ends the carry."""
+    def run(seq, lines):
+        tr = Transitions(TransitionSettings(confirm_s=0.5), 34.0)
+        out = []
+        pre = ["stopped"] * 40 + ["same"] * 30
+        for i, (d, line) in enumerate(zip(pre + seq, [None] * 40 + ["A"] * 30 + lines,
+                                          strict=True)):
+            o, _ = tr.step(i / 34.0, i, d if isinstance(d, Decision) else _d(d))
+            o = tr.carry(i / 34.0, o, line)
+            out.append(o.direction.value)
+        return out[70:]
+    n = 272                                  # 8 s at 0.1 Hz/s: 0.4 -> 1.2 Hz
+    ramp = [_doubt(0.4 + 0.1 * i / 34) for i in range(n)]
+    assert run(ramp, ["A"] * n) == ["same"] * n
+    band = 35                                # within 25 % of the answered 0.4 Hz
+    # a jump to another line at three times the speed (an alias) is not carried
+    assert run(ramp[:band] + [_doubt(1.5)] * 10, ["A"] * band + ["B"] * 10) == \
+        ["same"] * band + ["unknown"] * 10
+    assert run(ramp, [None] * n) == ["same"] * band + ["unknown"] * (n - band)
+    # a new lock carried at the answered speed is the fan the same way: its line goes on
+    assert run(ramp, ["B"] * n) == ["same"] * n
+    # up to 1.2 Hz on its line, then a window of it at 0.8 Hz: the fan may be slowing
+    # to reverse, so the carry ends there and doubt is unknown again
+    out = run(ramp + [_doubt(0.8)] + [_doubt(1.2)] * 5, ["A"] * (n + 6))
+    assert out[:n] == ["same"] * n and out[n:] == ["unknown"] * 6
+
+
 def test_a_slow_doubtful_answer_starts_nothing():
     """Below the rate a new direction needs (twice the floor) a doubtful answer is no
     start either: the end of a spin-down leaves slow, shaky tracks."""

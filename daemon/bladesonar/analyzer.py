@@ -638,7 +638,8 @@ class PulseAnalyzer:
                 d = self.decided = self.decision((self.motion_fed, float(ps.motion[q])))
                 state, fired = self.transitions.step(t_s, k, d, self._since)
                 state, changed = self._feed_back(k, t_s, d, state)
-                self.state = self.transitions.carry(t_s, state)
+                self.state = self.transitions.carry(
+                    t_s, state, self.tracker.identity if self.tracker.locked else None)
                 self._stopped_k = k if self.state.direction == Direction.STOPPED \
                     else self._stopped_k
                 self.state_edge = edge

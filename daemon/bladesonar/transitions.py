@@ -46,6 +46,7 @@ from __future__ import annotations
 import enum
 import math
 from collections import deque
+from collections.abc import Hashable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -212,6 +213,9 @@ class Transitions:
         self._read_slow_t = -math.inf        # the last window that read the fan slower
                                              # than the floor (s)
         self._in_doubt = False               # the last step's decision had no kind
+        self._answered = False               # the last step answered the known direction
+        self._carry_line: Hashable | None = None   # the tracked line of the last answered
+                                             # or carried window (carry)
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
     @property
@@ -225,7 +229,7 @@ class Transitions:
         every few pulses); (the state to publish, events confirmed now) out. The hold
         rules in their order, with what the decision shows of the fan noted between."""
         self.hold = None
-        self._in_doubt = False
+        self._in_doubt = self._answered = False
         cand = self._candidate(d)
         held = self._slow_new_direction(t_s, d, cand)
         if held is not None:
@@ -257,9 +261,10 @@ class Transitions:
         self.known_decision = d
         self._carry_from = _rate(d) if cand in WAY_KINDS else None
         self._carry_seen = float(t_s)
+        self._answered = True
         return d, fired
 
-    def carry(self, t_s: float, d: Decision) -> Decision:
+    def carry(self, t_s: float, d: Decision, line: Hashable | None = None) -> Decision:
         """A decision in doubt only about the direction (``turning``: a confident track
         whose mirror image or an alias rate fits as well, in a room whose echoes turned
         either way are alike) at the speed the known direction was last answered at
@@ -273,10 +278,17 @@ class Transitions:
         two rules agree on what a fan can do). What the fan shows on the way down ends
         it too: a confident track under the band (a fan slowing, or the rate a new
         direction needs), or an answer of rest (in :meth:`step`). Windows with no track,
-        weak tracks and tracks above the band (an alias line, a ramp up) are not carried
-        and do not end it: a weak track may hold a stale line while the fan slows beneath
-        it, which the time bound covers, and alias lines come and go."""
+        weak tracks and tracks above the band (an alias line) are not carried and do not
+        end it: a weak track may hold a stale line while the fan slows beneath it, which
+        the time bound covers, and alias lines come and go. Above the band, the tracked
+        ``line`` (:attr:`tracking.Tracker.identity`, which changes with every new lock and
+        every move to another line) tells a ramp up from an alias: the line of the last
+        answered or carried window, followed without a break, is the fan speeding up the
+        same way (it could turn the other way only through the floor, which ends the
+        carry), and the band moves up with it (never down: a slowing fan ends it)."""
         st = self.settings
+        if self._answered:
+            self._carry_line = line
         if not self._in_doubt or self._carry_from is None or self.known not in WAY_KINDS \
                 or not st.max_reversal_hz_s > 0:
             return d
@@ -287,12 +299,17 @@ class Transitions:
                                  and rate < (1.0 - CHAIN_AGREE) * answered):
             self._carry_from = None
             return d
-        if rate is None or not d.turning or rate > (1.0 + CHAIN_AGREE) * answered:
+        if rate is None or not d.turning:
+            return d
+        same_line = line is not None and line == self._carry_line
+        if rate > (1.0 + CHAIN_AGREE) * answered and not same_line:
             return d
         if t - self._carry_seen > _sudden_span(answered, rate, st.max_reversal_hz_s):
             self._carry_from = None
             return d
-        self._carry_seen = t
+        self._carry_seen, self._carry_line = t, line
+        if same_line and rate > answered:
+            self._carry_from = rate
         way = Direction.SAME if self.known == Kind.SAME else Direction.REVERSED
         known = self.known_decision
         rotation = known.rotation if known is not None and known.direction == way else None
