@@ -15,7 +15,7 @@ import pytest
 from bladesonar import config
 from bladesonar.dsp import aliasing
 from bladesonar.live import LiveAnalyzer
-from bladesonar.reference_build import build_reference
+from bladesonar.reference_build import PLACE_ADVICE, PLACE_CONTRAST, build_reference
 from bladesonar.sim import random_scene
 from bladesonar.sim.render import Simulator, simulate
 from bladesonar.sim.schedule import parse
@@ -36,15 +36,22 @@ def _setup(walls: float):
     return dr, scene, cfg, build_reference(x, cfg, dr.ref_direction)
 
 
-@pytest.mark.parametrize("walls", [0.0, 0.9])
+@pytest.mark.parametrize("walls", [0.0, 0.1, 0.9])
 def test_the_reference_measures_how_well_the_direction_shows(walls):
+    """No wall echo: the directions are nearly alike (warned, and the live analysis
+    starts in doubt); faint walls (0.1 of the pressure): they differ a little, and
+    another place is advised; bare walls: they differ plainly, nothing said."""
     _, _, _, ref = _setup(walls)
     contrast = ref.meta["direction_contrast"]
     warned = any("turned either way are nearly alike" in w for w in ref.meta["warnings"])
+    advised = any(PLACE_ADVICE in w for w in ref.meta["warnings"])
     if walls == 0.0:
-        assert contrast < aliasing.MIRROR_DOUBT_Z and warned, ref.meta
+        assert contrast < aliasing.MIRROR_DOUBT_Z and warned and advised, ref.meta
+    elif walls == 0.1:
+        assert aliasing.MIRROR_DOUBT_Z <= contrast < PLACE_CONTRAST, ref.meta
+        assert advised and not warned, ref.meta
     else:
-        assert contrast > aliasing.MIRROR_Z and not warned, ref.meta
+        assert contrast > PLACE_CONTRAST and not warned and not advised, ref.meta
 
 
 def test_with_no_wall_echo_the_live_direction_is_unknown_not_a_flipping_guess():

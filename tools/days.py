@@ -20,7 +20,13 @@ from bladesonar import config
 from bladesonar.errors import EstimationError, InputError
 from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer, capture_pulses
-from bladesonar.reference_build import Reference, build_reference, folds_multipath, unfolding_pri
+from bladesonar.reference_build import (
+    PLACE_ADVICE,
+    Reference,
+    build_reference,
+    folds_multipath,
+    unfolding_pri,
+)
 from bladesonar.runtime_report import TRANSITION_TARGETS_S
 from bladesonar.sim import random_scene
 from bladesonar.sim.render import Simulator, simulate
@@ -39,8 +45,6 @@ DRIFT_PPM = 40.0
 #: The fan speed a user picks when the reference asks for another one (commensurate
 #: with the PRF): a few percent faster, as the reference's words say.
 OTHER_SPEED = 1.04
-#: What ``reference`` warns of a place that cannot tell the fan's directions apart.
-PLACE_WARNING = "turned either way are nearly alike"
 HERE = Path(__file__).resolve().parent.parent
 
 
@@ -78,9 +82,10 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2,
     with the PRI the warning names; when echoes clip (warned, or refused for too few
     pulses left), at half the playback volume; when
     the speed is commensurate with the PRF (warned, or refused), at another fan speed,
-    OTHER_SPEED times the last; when the place cannot tell the fan's directions apart
-    (warned), with the device moved as the warning asks (``random_scene.moved``; 2-D
-    scenes, and not with ``stay``: the device left where it was drawn)."""
+    OTHER_SPEED times the last; when the place tells the fan's directions apart too
+    weakly (warned: ``PLACE_ADVICE``), with the device moved as the warning asks
+    (``random_scene.moved``; 2-D scenes, and not with ``stay``: the device left where it
+    was drawn)."""
     cfg0 = config.Config()
     if dims not in (2, 3):
         raise ValueError(f"dims {dims!r}: give 2 (floor-plan scenes) or 3 (box rooms)")
@@ -124,7 +129,7 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2,
         elif any("another fan speed" in w for w in ref.meta["warnings"]):
             rate_hz *= OTHER_SPEED
         elif not stay and isinstance(dr, random_scene.SceneDraw) and any(
-                PLACE_WARNING in w for w in ref.meta["warnings"]):
+                PLACE_ADVICE in w for w in ref.meta["warnings"]):
             there = random_scene.moved(dr, len(dr.moved_from))
             if there is dr:
                 break

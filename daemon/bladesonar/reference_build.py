@@ -137,6 +137,17 @@ class Reference:
         return out
 
 
+#: The direction contrast under which ``reference`` advises another place (under
+#: ``aliasing.MIRROR_DOUBT_Z``, 2, the live analysis starts in doubt too). Between 2 and
+#: 5 it tells the directions, but of 60 spent held-out rooms (1800001-2000020) 3 of the
+#: 6 such places were in doubt for minutes or flipped (right 26-82 %; the others 94-97 %),
+#: against none of the 6 at 5-8 (90-97 %) and 2 of the 46 above (83 and 85 %).
+PLACE_CONTRAST = 5.0
+#: What the place warnings advise (tools/days.py acts on it as a user would).
+PLACE_ADVICE = ("a place nearer a wall, further off the fan's axis, makes the wall echoes "
+                "that tell the directions apart stronger")
+
+
 def depends_on(cfg: Config) -> dict[str, Any]:
     """Config values a reference is only valid with (checked when it is loaded)."""
     return {"audio.sample_rate": cfg.audio.sample_rate,
@@ -371,8 +382,12 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
             f"from here the fan's echoes turned either way are nearly alike (direction "
             f"contrast {contrast:.1f} < {aliasing.MIRROR_DOUBT_Z:g}): the wall echoes that "
             f"tell the directions apart are weak, so the direction will often be unknown "
-            f"and each new one waits for its own evidence; a place nearer a wall, further "
-            f"off the fan's axis, makes them stronger")
+            f"and each new one waits for its own evidence; {PLACE_ADVICE}")
+    elif contrast is not None and contrast < PLACE_CONTRAST:
+        warnings.append(
+            f"from here the fan's echoes turned either way differ only a little (direction "
+            f"contrast {contrast:.1f} < {PLACE_CONTRAST:g}): the direction will at times be "
+            f"unknown, or come late after a change; {PLACE_ADVICE}")
     blade_hz = r * prf
     rate_hz = blade_hz / cfg.scene.blades
     dropped = count_dropped(full.status, ended=True)
