@@ -116,13 +116,12 @@ class SceneDraw:
 
 def moved(dr: SceneDraw, attempt: int = 0) -> SceneDraw:
     """The day of ``dr`` with the device put where ``reference`` asks when the place
-    tells the fan's directions apart too weakly (its warning, ``direction_contrast`` under
-    5, ``reference_build.PLACE_CONTRAST``):
-    nearer a wall and further off the fan's axis, in the same room, within the reach and
-    clearances of :func:`draw`. A user does not know where the telling echoes are, so the
-    place is drawn (from the seed and ``attempt``) among those that follow the advice;
-    when none does, among those that follow half of it; when none is in reach at all,
-    ``dr`` as it is."""
+    tells the fan's directions apart too weakly (``direction_contrast`` under
+    ``reference_build.PLACE_CONTRAST``): nearer a wall and further off the fan's axis, in
+    the same room, within the reach and clearances of :func:`draw`. A user does not know
+    where the telling echoes are, so the place is drawn (from the seed and ``attempt``)
+    among those that follow the advice; when none does, among those that follow half of
+    it; when none is in reach at all, ``dr`` as it is."""
     s = dr.scene
     V = np.asarray(s.vertices)
     old = np.asarray(s.sensor)
