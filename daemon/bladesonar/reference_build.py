@@ -140,7 +140,7 @@ class Reference:
 #: The direction contrast under which ``reference`` advises another place (under
 #: ``aliasing.MIRROR_DOUBT_Z``, 2, the live analysis starts in doubt too). Between 2 and
 #: 5 it tells the directions, but of 60 spent held-out rooms (1800001-2000020) 3 of the
-#: 6 such places were in doubt for minutes or flipped (right 26-82 %; the others 94-97 %),
+#: 6 such places were in doubt for minutes or flipped (right 26-82 %; the others 93.8-97.1 %),
 #: against none of the 6 at 5-8 (90-97 %) and 2 of the 46 above (83 and 85 %).
 PLACE_CONTRAST = 5.0
 #: What the place warnings advise (tools/days.py acts on it as a user would).

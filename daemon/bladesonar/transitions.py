@@ -213,7 +213,7 @@ class Transitions:
         self._read_slow_t = -math.inf        # the last window that read the fan slower
                                              # than the floor (s)
         self._in_doubt = False               # the last step's decision had no kind
-        self._answered = False               # the last step answered the known direction
+        self._answered = False               # no rule held the last step's answer
         self._carry_line: Hashable | None = None   # the tracked line of the last answered
                                              # or carried window (carry)
         self.events: list[Event] = []        # all events so far (the caller may clear)
