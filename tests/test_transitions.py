@@ -431,6 +431,42 @@ def test_a_known_direction_is_carried_up_a_ramp_on_the_line_that_answered_it():
     assert out[:n] == ["same"] * n and out[n:] == ["unknown"] * 6
 
 
+def test_a_confirmed_stop_is_kept_while_no_line_is_found():
+    """Closed form, 34 pulses/s: a fan confirmed at rest, then windows with no line at
+    all (no consistent match: in a small hard-walled reverberant room the resting fan's
+    echoes change between pulses as a turning fan's do, spent held-out 2200016) stay
+    `stopped`: with no line there is nothing turning to tell. A window with a line (a
+    lock, turning or not) is not kept, nor a window with no line when the known state
+    is a direction; the events are the machine's as before (a start fires as it did)."""
+    def run(seq, lines):
+        tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=1.0), 34.0)
+        out, fired = [], []
+        for i, (d, line) in enumerate(zip(seq, lines, strict=True)):
+            o, f = tr.step(i / 34.0, i, d if isinstance(d, Decision) else _d(d))
+            o = tr.carry(i / 34.0, o, line)
+            out.append(o.direction.value)
+            fired += [(e.kind, e.pulse) for e in f]
+        return out, fired
+    rest = ["same"] * 40 + ["stopped"] * 60
+    out, _ = run(rest + [_lost()] * 30 + [_weak(0.01)] * 5,
+                 [None] * 130 + ["A"] * 5)
+    assert out[100:130] == ["stopped"] * 30 and out[130:] == ["unknown"] * 5
+    # a start: the lost windows before its first line stay stopped, the start fires as
+    # it does without the rule (the machine's events are untouched)
+    seq = rest + [_lost()] * 5 + ["same"] * 40
+    out, fired = run(seq, [None] * 105 + ["B"] * 40)
+    assert out[100:105] == ["stopped"] * 5
+    tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=1.0), 34.0)
+    plain = []
+    for i, d in enumerate(seq):
+        plain += [(e.kind, e.pulse) for e in
+                  tr.step(i / 34.0, i, d if isinstance(d, Decision) else _d(d))[1]]
+    assert fired == plain and ("started", 105 + 16) in fired
+    # a known direction: a window with no line is unknown, as before
+    out, _ = run(["same"] * 40 + [_lost()] * 5, [None] * 45)
+    assert out[40:] == ["unknown"] * 5
+
+
 def test_a_slow_doubtful_answer_starts_nothing():
     """Below the rate a new direction needs (twice the floor) a doubtful answer is no
     start either: the end of a spin-down leaves slow, shaky tracks."""
