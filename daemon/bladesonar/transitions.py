@@ -285,7 +285,9 @@ class Transitions:
         every move to another line) tells a ramp up from an alias: the line of the last
         answered or carried window, followed without a break, is the fan speeding up the
         same way (it could turn the other way only through the floor, which ends the
-        carry), and the band moves up with it (never down: a slowing fan ends it)."""
+        carry), and the band moves up with it (never down: a slowing fan ends it). A
+        confirmed rest is carried too, through windows with no line at all (no track:
+        nothing is seen turning)."""
         st = self.settings
         if self._answered:
             self._carry_line = line
