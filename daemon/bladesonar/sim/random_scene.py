@@ -126,12 +126,11 @@ def moved(dr: SceneDraw, attempt: int = 0) -> SceneDraw:
     V = np.asarray(s.vertices)
     old = np.asarray(s.sensor)
     centre = np.asarray(s.fan_centre)
-    tip = s.blade_length_m + s.hub_radius_m
-    wall, axis = _clearance(old, V), float(np.hypot(*(old - centre)))
+    wall, axis = _clearance(old, V), s.sensor_fan_distance_m
     rng = np.random.default_rng([dr.seed, 3, attempt])
 
     def reach(p: np.ndarray) -> bool:
-        return tip + TIP_CLEARANCE_M <= math.dist(p, centre) <= MAX_RANGE_M
+        return s.tip_radius_m + TIP_CLEARANCE_M <= math.dist(p, centre) <= MAX_RANGE_M
 
     both = _point(rng, V, 0.25, lambda p: reach(p) and _clearance(p, V) < wall
                   and math.dist(p, centre) > axis)
