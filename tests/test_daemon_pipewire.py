@@ -7,6 +7,7 @@ at 48 and 44.1 kHz, through a quantum change and a server restart under the daem
 from __future__ import annotations
 
 import json
+import statistics
 import subprocess
 import threading
 import time
@@ -189,15 +190,22 @@ def check_no_loss(st: dict[str, Any]) -> None:
 def check_answer(run: Run) -> None:
     """What a subscriber must get on this schedule: one reversal to cw, the rate."""
     assert run.rc == 0, run.stderr[-3000:]
-    seen = [(round(t - run.messages[0][0], 1), p.get("direction"), p.get("confidence"))
+    seen = [(round(t - run.messages[0][0], 1), p.get("direction"), p.get("confidence"),
+             p.get("rate_hz"))
             for t, m in run.messages if m["topic"].endswith("/state")
             for p in [m["payload"]]]
-    print("states (s after the first message, direction, confidence):", seen)
+    print("states (s after the first message, direction, confidence, rate):", seen)
     print("daemon log:", run.stderr[-3000:])
     assert [e["kind"] for e in run.events()] == ["reversed"], run.events()
     assert run.events()[0]["details"]["rotation"] == "cw"
-    last = [s for s in run.topic("state") if s.get("direction") == "reversed"][-1]
-    assert last["rotation"] == "cw" and last["rate_hz"] == pytest.approx(RATE, rel=0.05)
+    # the settled rate: the median of the last reversed states, each within 10 % (the
+    # last state alone read 0.4725 Hz once, in a CI run with the nodes suspended, at
+    # the same confidences as the runs here; the rates were not printed then)
+    settled = [s for s in run.topic("state") if s.get("direction") == "reversed"][-6:]
+    assert len(settled) == 6 and all(s["rotation"] == "cw" for s in settled), settled
+    rates = [s["rate_hz"] for s in settled]
+    assert statistics.median(rates) == pytest.approx(RATE, rel=0.02), rates
+    assert all(r == pytest.approx(RATE, rel=0.10) for r in rates), rates
 
 
 # -- the ALSA loopback on the same schedule: the answers to match ------------------------
