@@ -524,6 +524,26 @@ def test_a_reversal_waits_until_a_fan_could_have_made_it():
     assert run(60, hold=0.8)[0] == [("reversed", 128)]
 
 
+@pytest.mark.parametrize(("between_hz", "fires"), [(0.03, True), (0.21, False)])
+def test_a_run_the_other_way_after_the_fan_read_slow_is_judged_afresh(between_hz, fires):
+    """Closed form, 34 pulses/s, 0.3 Hz/s: 'same' at 0.21 Hz until pulse 99, then 4
+    pulses the other way at 0.14 Hz (an early lock: sudden, 0.12 s after 0.21 Hz), then
+    51 pulses (1.5 s) without a direction reading ``between_hz``, then the other way at
+    0.17 Hz on a line never shown to beat its mirror. Read under the floor (0.05 Hz),
+    the fan was near zero: the new run is judged afresh, no longer sudden (3.2 s after
+    0.21 Hz against 0.5 x 1.27 s), and the reversal fires at its 17th pulse (155 + 16).
+    Read at the old speed the whole time, the new run is still the mirror image and is
+    held. (Seen: spent scene 2300001's reversal held 5.9 s, until its line's check.)"""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.3), 34.0)
+    between = Decision(Direction.UNKNOWN, None, None, between_hz, None, 0.4, "weak evidence")
+    seq = [_d("same", 0.21)] * 100 + [_d("reversed", 0.14, checked=False)] * 4 \
+        + [between] * 51 + [_d("reversed", 0.17, checked=False)] * 60
+    fired = []
+    for i, d in enumerate(seq):
+        fired += [(e.kind, e.pulse) for e in tr.step(i / 34.0, i, d)[1]]
+    assert fired == ([("reversed", 171)] if fires else [])
+
+
 def test_the_old_direction_is_bounded_by_rest_and_by_how_fast_a_fan_speeds_up():
     """Closed form, 10 answers/s, 0.3 Hz/s: 'same' at 0.4 Hz, then at rest ('stopped')
     until 5.0 s, then a lock claiming 'same' at 0.26 Hz at 5.1 and 5.2 s, then

@@ -501,16 +501,24 @@ class Transitions:
     def _note_candidate(self, t_s: float, d: Decision, cand: Kind | None,
                         prev: Kind | None) -> None:
         """A new candidate starts its count afresh and is judged sudden or not; a run
-        that resumes after a break on a line of the old way that has reached zero since
-        is judged afresh (a fan not seen slowing to zero keeps the verdict)."""
+        that resumes after a break is judged afresh where the fan was seen near zero
+        since: on a line of the old way that has reached zero, or in a window that read
+        it slower than the floor after it was last seen turning the old way (a fan not
+        seen slowing to zero keeps the verdict)."""
         if cand is not None and cand != self._cand:
             self._cand = cand
             self._support.clear()
             self._cand_rate, self._cand_t = _rate(d), float(t_s)
             self._cand_sudden = self._sudden_reversal(t_s, self._cand_rate, cand)
         elif cand is not None and prev != cand and self._cand_sudden \
-                and self.known in WAY_KINDS and self._past_zero(t_s, self.known):
+                and self.known in WAY_KINDS and (self._past_zero(t_s, self.known)
+                                                 or self._read_slow_since_chain()):
             self._cand_sudden = self._sudden_reversal(t_s, _rate(d), cand)
+
+    def _read_slow_since_chain(self) -> bool:
+        """Whether a window read the fan slower than the floor after it was last seen
+        turning the known way (the chain's last answer)."""
+        return self._chain is not None and self._read_slow_t > self._chain[0]
 
     def _count_support(self, cand: Kind, pulse: int, pulses: int) -> None:
         """Pulses for the candidate within twice its confirmation time: an unknown answer
