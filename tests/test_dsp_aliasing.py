@@ -337,3 +337,39 @@ def test_the_mirror_evidence_of_six_batch_means_is_read_on_the_normal_scale():
     f = table_lookup(table, p) + 0.05 * np.random.default_rng(0).standard_normal(
         (len(p), table.shape[1]))
     assert aliasing.mirror_evidence(aliasing.distances(f, fine), p % 1.0, fine).dof == 5
+
+
+def test_a_winner_moves_the_track_only_once_each_angle_was_seen_enough():
+    """A track locked on the alias 5/12 of 1/12 blade period per pulse (the pulses see
+    the same 12 angles), the true line clearly better from the first check on: the watch moves
+    the track to the true line, but not before the window since the lock has seen each
+    angle ``SEEN_EACH`` times (48 pulses: a start at 1/12 in a random room was moved to
+    its mirror on 41, where one check's winner had swung to the wrong line). The track is
+    scripted (a real Tracker whose line is set), as in ``_watch_on``."""
+    from bladesonar.dsp.tracking import Tracker, TrackerSettings
+    table = _table(visible=None)
+    rate, n = 1 / 12, 120
+    k, f = _pulses(table, rate, n=n)
+    fine = aliasing.fine_table(table)
+    dist = aliasing.distances(f, fine)
+    watch = aliasing.AliasWatch(fine, 170, 0.03, min_rate=0.003)
+    tr = Tracker(TrackerSettings(max_rate=0.45))
+    tr.start_k = tr.locked_k = 0
+    tr.P = np.diag([1e-4, 1e-8])
+    moved_at = None
+    for i in range(n):
+        if tr.relocks == 0:
+            tr.x = np.array([(0.5 + 5 * rate * i) % 1.0, 5 * rate])   # on the alias
+        else:
+            assert tr.x is not None and tr.last_k is not None
+            tr.x = np.array([(tr.x[0] + tr.x[1] * (i - tr.last_k)) % 1.0, tr.x[1]])
+            moved_at = i if moved_at is None else moved_at
+        tr.last_k = i
+        watch.push(i, dist[i], float(tr.x[0]))
+        # (``resting``: the mirror check, which moves tracks by its own evidence, is not
+        # run; the alias check is)
+        watch.check(tr, accel=0.0, moving=lambda: True, resting=True)
+    assert moved_at is not None and tr.x is not None
+    assert (watch.moves, watch.mirror_moves) == (1, 0)
+    assert float(tr.x[1]) == pytest.approx(rate, abs=1e-6)
+    assert 48 <= moved_at <= 48 + 24, moved_at     # (unbounded, it moved on pulse 18)

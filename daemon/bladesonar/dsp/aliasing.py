@@ -42,6 +42,12 @@ from .tracking import Tracker, TrackId, wrap
 MAX_Q = 24
 #: Relative cost gap between the best alias line and the next one needed to trust it.
 MARGIN = 0.1
+#: Times the window since a lock must have seen each of the q blade angles before its
+#: winner moves the track: over fewer the lines' costs swing from one check to the next
+#: (a start at 1/12 blade period per pulse: the true line clear by 0.13 over 32 pulses,
+#: its mirror by 0.16 over 41, which moved the track there and fired a false reversal;
+#: kept on, the true line won by 0.31 and more from 50 pulses on)
+SEEN_EACH = 4
 #: Pulses (about a second) of a ramp that verify a track (AliasWatch.verified).
 RAMP_PULSES = 34
 #: Phase steps of the line fit per table bin.
@@ -503,7 +509,7 @@ class AliasWatch:
                           min_rate=self.min_rate, fracs=fracs, dist=self._dist[idx])
         self.verdict = v
         if v is not None:
-            self._act(tr, v, int(k[-1]))
+            self._act(tr, v, int(k[-1]), span < SEEN_EACH * v.frac.denominator)
 
     def _window_of(self, tr: Tracker) -> tuple[np.ndarray, np.ndarray]:
         """Ring indices and pulse numbers of the window's pulses since the track began."""
@@ -678,8 +684,10 @@ class AliasWatch:
             if self._ramp_pulses >= RAMP_PULSES:
                 self.verified = ident
 
-    def _act(self, tr: Tracker, v: AliasVerdict, k_last: int) -> None:
-        """Move the track on a confirmed clear winner; say why the answer is unknown."""
+    def _act(self, tr: Tracker, v: AliasVerdict, k_last: int, young: bool = False
+             ) -> None:
+        """Move the track on a confirmed clear winner, never while the window since the
+        lock is ``young`` (``SEEN_EACH``); say why the answer is unknown."""
         r0 = self.ref_cycles_per_pulse
         if v.frac == 0:
             seen = ("the track stands still while the fan moves: it may be the alias of a "
@@ -688,7 +696,8 @@ class AliasWatch:
         else:
             seen = (f"rate near {v.frac.numerator}/{v.frac.denominator} blade period per "
                     f"pulse: the pulses see only {v.frac.denominator} blade angles")
-        if v.status == "resolved" and not abs(v.best_rate - self._move_to) <= 0.25 / MAX_Q:
+        if v.status == "resolved" and (young
+                                       or not abs(v.best_rate - self._move_to) <= 0.25 / MAX_Q):
             # one check alone never moves the track (a mirror line can win one window of
             # a weakly asymmetric room): until the next check agrees, the answer is unknown
             self._move_to = v.best_rate
