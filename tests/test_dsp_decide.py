@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from bladesonar.dsp.decide import (
+    AcceptFloor,
     DecideSettings,
     MotionMeter,
     NoiseFloor,
@@ -317,3 +318,33 @@ def test_the_noise_floor_follows_a_louder_room_over_the_window():
     for e in _diff_energies(rng, 3 * 170, n, sigma * np.sqrt(2.0)):
         nf.update(e)
     assert nf.energy == pytest.approx(2 * n * sigma ** 2, rel=0.1)
+
+
+def test_a_windows_accepted_share_is_read_against_the_devices_settled_tracks():
+    """Binomial shares of 170 matches. A right track on a device where settled tracks
+    accept 0.65 of them (a weak room: its matches scatter past the gate) dips to 0.40
+    after a reversal's lock: read against 0.65 it claims a direction (>= 0.5). A
+    spurious lock accepts what falls in its gate by chance (0.2 of the phases) and stays
+    under 0.5 in every room; on a clear device (settled 0.95) a share of 0.45 stays
+    under 0.5. Before ``least`` settled readings the share is read as it is, and a
+    device whose settled tracks accept under ``least_share`` is read against that."""
+    rng = np.random.default_rng(7)
+
+    def shares(p: float, n: int) -> np.ndarray:
+        return rng.binomial(170, p, n) / 170.0
+
+    weak, clear = AcceptFloor(0.6, 1024, 64), AcceptFloor(0.6, 1024, 64)
+    assert weak.note(0.40, settled=False) == 0.40          # nothing learned yet
+    for a, b in zip(shares(0.65, 200), shares(0.95, 200), strict=True):
+        weak.note(float(a), settled=True)
+        clear.note(float(b), settled=True)
+    assert weak.typical == pytest.approx(0.65, abs=0.02)
+    assert weak.note(0.40, settled=False) >= 0.6
+    spurious = shares(0.2, 1000)
+    assert max(weak.note(float(a), settled=False) for a in spurious) < 0.5
+    assert clear.note(0.45, settled=False) < 0.5
+    assert clear.note(0.99, settled=False) == 1.0
+    poor = AcceptFloor(0.6, 1024, 64)
+    for a in shares(0.3, 200):
+        poor.note(float(a), settled=True)
+    assert poor.typical == 0.6

@@ -27,13 +27,24 @@ from .config import Config
 from .dsp import aliasing, rangescale
 from .dsp import device as dev
 from .dsp import fingerprint as fp
-from .dsp.decide import MotionMeter, NoiseFloor, RestFloor, decide, noise_threshold
+from .dsp.decide import (
+    AcceptFloor,
+    MotionMeter,
+    NoiseFloor,
+    RestFloor,
+    decide,
+    noise_threshold,
+)
 from .dsp.pulses import DROPOUT, OK, WARMUP, AlignedPulses, PulseAligner
 from .dsp.stats import median
 from .dsp.tracking import Tracker, TrackState
 from .reference_build import Reference, check_compatible
 from .transitions import Event, Transitions
 from .tuning import (
+    ACCEPT_CLEAR_SD,
+    ACCEPT_KEEP,
+    ACCEPT_LEAST,
+    ACCEPT_LEAST_SHARE,
     ANCHOR_TRUST_S,
     HOLD_S,
     NOISE_FALL,
@@ -546,6 +557,7 @@ class PulseAnalyzer:
         self.rest_floor = RestFloor(self._decide_settings.still_threshold,
                                     noise_threshold(*shape, quantile=0.5),
                                     REST_SHIFT_MAX, REST_KEEP, REST_LEAST)
+        self.accept_floor = AcceptFloor(ACCEPT_LEAST_SHARE, ACCEPT_KEEP, ACCEPT_LEAST)
         self._table_norms = (self.ref.table ** 2).sum(axis=1)
         self._table_floor = fp.distance_floor(self.ref.table)
         tw = self.ref.meta.get("twin_bins")
@@ -1024,6 +1036,11 @@ class PulseAnalyzer:
         accepted = float((acc * wq).sum() / wq.sum()) if wq.sum() > 1e-12 else 0.0
         locked = self.tracker.locked
         rate, sd = self.tracker.rate
+        tr = self.tracker
+        settled = locked and tr.start_k is not None and tr.last_k is not None \
+            and tr.last_k - tr.start_k >= self.window and math.isfinite(rate) \
+            and abs(rate) >= ACCEPT_CLEAR_SD * sd
+        accepted = self.accept_floor.note(accepted, settled)
         prf = self.cfg.prf_hz
         accel, _ = self.tracker.accel
         # the short meter's threshold, calibrated on its readings while the tracker sees

@@ -43,6 +43,17 @@ REST_SHIFT_MAX = 0.15
 REST_KEEP = 256
 REST_LEAST = 30
 
+#: The accepted share read against this device's settled tracks (dsp/decide.AcceptFloor):
+#: settled means older than the window and this many standard deviations clear of zero
+#: (the decision's own "clear" test); the typical share never counts as under
+#: ACCEPT_LEAST_SHARE (a room where settled tracks accept less than that is not one
+#: where a track's share says anything), from ACCEPT_LEAST of the last ACCEPT_KEEP
+#: decisions.
+ACCEPT_CLEAR_SD = 4.0
+ACCEPT_LEAST_SHARE = 0.6
+ACCEPT_KEEP = 1024
+ACCEPT_LEAST = 64
+
 #: Pulses between checks of a poorly accepted track (PulseAnalyzer._recheck_track).
 RECHECK_EVERY = 8
 

@@ -11,8 +11,9 @@ Two independent pieces of evidence:
 * The track (:mod:`tracking`): phase rate w (reference cycles per pulse) and its standard
   deviation. The sign is trusted by ``p = Phi(|w| / sd)``, the probability that the sign
   is right under the filter's own uncertainty; confidence is ``2 p - 1`` times the
-  quality-weighted share of recent matches the filter accepted (and scaled down further
-  when matches are on average barely better than chance).
+  quality-weighted share of recent matches the filter accepted, read against the share
+  this device's settled tracks accept (:class:`AcceptFloor`), and scaled down further
+  when matches are on average barely better than chance.
 
 ``unknown`` when the evidence is too weak: no lock, low confidence, or a scene that cannot
 be seen at all (only noise in the gate: neither stopped nor moving can be told).
@@ -387,6 +388,39 @@ class RestFloor:
         return self.threshold
 
 
+class AcceptFloor:
+    """The share of its matches a settled track accepts on this device, against which a
+    window's share is read (:func:`decide`'s ``accepted``).
+
+    Why: at low SNR the matches scatter beyond the track's gate even when the track is
+    the fan's, so a settled, right track accepts only part of them (0.6-0.7 at 6.6 dB,
+    6 blades, against 0.9 and more in clear rooms), and a dip after a reversal's lock
+    left a right, tight track under the confidence that claims a direction for
+    seconds. The shares of tracks older than the window, clear of zero by
+    ``clear_sd`` standard deviations, are kept, and a window's share is divided by their
+    median (never by less than ``least_share``, never scaled up before ``least``
+    readings): a spurious lock accepts less than the device's settled tracks do, however
+    good or bad the room.
+    """
+
+    def __init__(self, least_share: float, keep: int, least: int) -> None:
+        self.least_share = float(least_share)
+        self.least = int(least)
+        self._seen: deque[float] = deque(maxlen=int(keep))
+        self.typical = 1.0
+
+    def note(self, accepted: float, settled: bool) -> float:
+        """Add one window's share (``settled``: its track is old and clear of zero);
+        return the share read against the device's typical one, in [0, 1]."""
+        if settled and math.isfinite(accepted):
+            self._seen.append(float(accepted))
+            if len(self._seen) >= self.least:
+                med = float(median(np.fromiter(self._seen, np.float64, len(self._seen))))
+                self.typical = min(max(med, self.least_share), 1.0)
+        return min(max(accepted, 0.0) / self.typical, 1.0) if math.isfinite(accepted) \
+            else accepted
+
+
 class NoiseFloor:
     """One pulse's noise energy in the raw gate, for the scene test (``decide``'s
     ``scene``): half the energy of the difference between consecutive pulses, which is
@@ -477,7 +511,8 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         Whether the tracker holds a track.
     accepted : float
         Share of recent matches (weighted by quality squared, as the filter weighs them)
-        the tracker accepted, in [0, 1].
+        the tracker accepted, in [0, 1], read against the device's settled tracks'
+        (:class:`AcceptFloor`; the analysis does that).
     quality : float
         Mean match contrast of recent pulses, in [0, 1]; below ``good_quality`` it scales
         the confidence down (a scene hardly visible).
