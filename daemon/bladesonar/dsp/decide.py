@@ -406,16 +406,22 @@ class AcceptFloor:
     def __init__(self, least_share: float, keep: int, least: int) -> None:
         self.least_share = float(least_share)
         self.least = int(least)
-        self._seen: deque[float] = deque(maxlen=int(keep))
+        # the last ``keep`` shares, in a ring (their order does not move a median; a
+        # deque copied to an array at every settled decision cost half of this class's
+        # time, on the analysis's per-decision path)
+        self._seen = np.empty(int(keep))
+        self._count = 0
         self.typical = 1.0
 
     def note(self, accepted: float, settled: bool) -> float:
         """Add one window's share (``settled``: its track is old and clear of zero);
         return the share read against the device's typical one, in [0, 1]."""
         if settled and math.isfinite(accepted):
-            self._seen.append(float(accepted))
-            if len(self._seen) >= self.least:
-                med = float(median(np.fromiter(self._seen, np.float64, len(self._seen))))
+            keep = len(self._seen)
+            self._seen[self._count % keep] = accepted
+            self._count += 1
+            if self._count >= self.least:
+                med = float(median(self._seen[:min(self._count, keep)]))
                 self.typical = min(max(med, self.least_share), 1.0)
         return min(max(accepted, 0.0) / self.typical, 1.0) if math.isfinite(accepted) \
             else accepted
