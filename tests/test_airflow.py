@@ -275,12 +275,15 @@ def test_in_a_ringing_room_a_peak_pulled_to_zero_shift_is_no_call(monkeypatch):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed, why", [
-    (3, "opposite sides"),    # reverberant, small speaker: mirror excess t -19.7 at rest
+    # reverberant, a small speaker clipped at some sub-sample positions, 138 ppm: while
+    # its edges were timed off the clocks' line (docs/dynamics.md) the resting room
+    # changed between pulses, the mirror excess read t -19.7 and its lag-1 and lag-2
+    # peaks on opposite sides kept it unknown; timed on the line it reads as noise
+    (3, "standard errors"),
     (125, "standard errors"),  # noise and drift alone: plain peaks 20, 40 out, t 3.5
 ])
 def test_fans_at_rest_the_guards_keep_unknown(seed, why):
-    # tuning rooms with the fan still, each of which a guard kept from a call: the
-    # mirror excess's lag-1 and lag-2 peaks on opposite sides, and |t| under CALL_T
+    # tuning rooms with the fan still: |t| under CALL_T keeps them unknown
     a = _at_rest(seed)
     assert a.airflow == "unknown", a
     assert why in a.reason, a
