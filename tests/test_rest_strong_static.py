@@ -5,10 +5,10 @@ and the stop must be called in time.
 
 Under drift the sub-sample position of every pulse turns once every 1 / (drift x PRI)
 pulses, and with it the aligner's interpolation error at the top of the band; strong
-static echoes carry it. Two things let it pass for motion (1.07-1.46 where noise reads
+static echoes carry it. Three things let it pass for motion (1.07-1.46 where noise reads
 1.02): the simulator's late tail, once rendered at the nearest of 32 sub-sample
-positions, and the gate's square ends, which leaked that error into the band the meter
-uses (dsp/analytic.py BAND_TAPER). A third: a direct coupling that clips at some
+positions; the gate's square ends, which leaked that error into the band the meter
+uses (dsp/analytic.py BAND_TAPER), and a direct coupling that clips at some
 sub-sample positions only, whose edges the peak fit read off the clocks' line.
 """
 
