@@ -1347,6 +1347,31 @@ def test_a_sudden_run_that_beats_its_mirror_corrects_an_unchecked_direction():
     assert fired == [("started", 40 + 16), ("reversed", 40 + 134)]
 
 
+def test_a_run_the_other_way_sooner_than_any_reversal_after_an_unchecked_start_waits():
+    """Closed form, 34 pulses/s, 0.3 Hz/s: a fan starts 'same' at 0.22 Hz on a line
+    never shown to beat its mirror image (confirmed at pulse 56, 1.65 s), then nothing
+    is seen, then the other way at 0.35 Hz from pulse 97 (2.85 s): later than a sudden
+    run (0.95 s), sooner than a fan reverses at all ((0.22 + 0.35) / 0.3 = 1.9 s). One
+    of the two lines is the mirror's (spent held-out 2600009: a false `reversed`
+    1.9 s after a start taken the mirror's way). Neither shown to beat its mirror, the
+    run is held, however long; once its line has, it corrects the start's direction
+    with no event. The same run after a fan could have reversed is a reversal."""
+    from bladesonar.transitions import Hold
+    start = [_d("stopped")] * 40 + [_d("same", 0.22, checked=False)] * 17
+    gap = [_lost()] * 40
+    run = [_d("reversed", 0.35, checked=False)] * 60
+    fired, published, tr = _walk(start + gap + run)
+    assert fired == [("started", 56)]
+    assert tr.known == Kind.SAME and tr.hold == Hold.MIRROR_IMAGE
+    assert set(published[97:]) == {"unknown"}
+    fired, published, tr = _walk(start + gap + run + [_d("reversed", 0.35)])
+    assert fired == [("started", 56)] and tr.known == Kind.REVERSED
+    assert published[157] == "reversed"
+    assert tr.known_decision is not None and "corrected" in tr.known_decision.reason
+    fired, _, tr = _walk(start + [_lost()] * 80 + run)
+    assert fired == [("started", 56), ("reversed", 137 + 16)]
+
+
 def test_a_decided_turn_is_no_rest_for_the_mirror_check_while_the_static_is_held(
         reference):
     """The alias watch skips its mirror check while the fan rests. A held static

@@ -156,10 +156,11 @@ class MachineState:
 SUDDEN_SHARE = 0.5
 
 
-def _sudden_span(old_hz: float, new_hz: float, max_hz_s: float) -> float:
+def _sudden_span(old_hz: float, new_hz: float, max_hz_s: float,
+                 share: float = SUDDEN_SHARE) -> float:
     """Seconds within which a fan at ``old_hz`` seen at ``new_hz`` the other way is
-    sudden: ``SUDDEN_SHARE`` of the time down through zero and up at ``max_hz_s``."""
-    return SUDDEN_SHARE * (old_hz + new_hz) / max_hz_s
+    sudden: ``share`` of the time down through zero and up at ``max_hz_s``."""
+    return share * (old_hz + new_hz) / max_hz_s
 #: How close (a share of it) an answer with no direction must come to the speed the fan
 #: was last seen turning at to show that it still turns (:meth:`Transitions._keep_chain`):
 #: a fan slowing to reverse changes speed by less within the few tenths of a second
@@ -194,6 +195,7 @@ class Transitions:
         self._cand_rate = 0.0                # |rate| of the candidate's first answer (Hz)
         self._cand_t = 0.0                   # and its time (s)
         self._cand_sudden = False            # a reversal whose first answer came too soon
+        self._cand_impossible = False        # sooner than a fan reverses at all
         self._chain: tuple[float, float] | None = None   # (t, rate) last seen turning on
         self._zero_by: float | None = None   # a slowing fan would pass zero by then (s)
         self._slowing_hz_s = 0.0
@@ -363,12 +365,21 @@ class Transitions:
         """The other way at once, at a speed no fan reaches so soon through zero: the
         mirror image of the blade pattern, unless the new line has beaten its mirror
         (in a room where directions are in doubt not even then). Its answers count for
-        its confirmation all the same, which the check, once passed, completes."""
-        if self._cand_sudden and cand != self.known and (d.doubtful_room
-                                                         or not d.mirror_checked):
+        its confirmation all the same, which the check, once passed, completes. The
+        other way later, but still sooner than a fan reverses at all, after a direction
+        never seen on a line that beat its mirror: one of the two is the mirror's, and
+        the new line waits for its check too (outside doubtful rooms, where a check
+        says nothing); passed, it corrects the direction (:meth:`_corrects`)."""
+        if cand == self.known or d.mirror_checked and not d.doubtful_room:
+            return None
+        if self._cand_sudden:
             return Held(Hold.MIRROR_IMAGE,
                         f"turning {d.direction} at once after the other way, sooner than a "
                         f"fan reverses, on a line not shown to beat its mirror image")
+        if self._cand_impossible and not self._known_checked and not d.doubtful_room:
+            return Held(Hold.MIRROR_IMAGE,
+                        f"turning {d.direction} sooner than a fan reverses after the other "
+                        f"way, neither line shown to beat its mirror image")
         return None
 
     def _reversal_under_way(self, t_s: float, d: Decision, cand: Kind) -> Held | None:
@@ -510,10 +521,14 @@ class Transitions:
             self._support.clear()
             self._cand_rate, self._cand_t = _rate(d), float(t_s)
             self._cand_sudden = self._sudden_reversal(t_s, self._cand_rate, cand)
-        elif cand is not None and prev != cand and self._cand_sudden \
+            self._cand_impossible = self._impossible_reversal(t_s, self._cand_rate, cand)
+        elif cand is not None and prev != cand and self._cand_impossible \
                 and self.known in WAY_KINDS and (self._past_zero(t_s, self.known)
                                                  or self._read_slow_since_chain()):
-            self._cand_sudden = self._sudden_reversal(t_s, _rate(d), cand)
+            # (a sudden run is an impossible one too)
+            self._cand_sudden = self._cand_sudden and self._sudden_reversal(t_s, _rate(d),
+                                                                            cand)
+            self._cand_impossible = self._impossible_reversal(t_s, _rate(d), cand)
 
     def _read_slow_since_chain(self) -> bool:
         """Whether a window read the fan slower than the floor after it was last seen
@@ -541,7 +556,7 @@ class Transitions:
         if cand == self.known:
             return d, []
         before = self.known
-        corrected = self._corrects(cand)
+        corrected = self._corrects(cand, d)
         self.known = cand
         self._known_checked = d.mirror_checked
         self._rest_since_known = False
@@ -560,15 +575,19 @@ class Transitions:
         self.events.append(ev)
         return d, [ev]
 
-    def _corrects(self, cand: Kind) -> bool:
+    def _corrects(self, cand: Kind, d: Decision) -> bool:
         """Whether confirming ``cand`` corrects the known direction rather than reverses
-        it: a sudden run (sooner than a fan reverses, so it got here only on a line that
-        beat its mirror image) after a direction never seen on such a line. No fan turns
-        about that fast; the direction before was the mirror of the blade pattern (a
-        start's first lock, mostly). Where both lines beat their mirrors, the physics and
-        the check disagree, and the reversal stands."""
+        it: a run that began sooner than a fan reverses at all (``max_reversal_hz_s``),
+        on a line that beat its mirror image (a sudden one got here only so), after a
+        direction never seen on such a line. No fan turns about that fast; the direction
+        before was the mirror of the blade pattern (a start's first lock, mostly: in
+        spent held-out 2600009 a start's first 17 pulses on two tracks the mirror's way,
+        after eight on the right one, and the right way 0.9 s later, which made a false
+        reversal). Where both lines beat their mirrors, the physics and the check
+        disagree, and the reversal stands."""
         return self.known in WAY_KINDS and cand in WAY_KINDS and cand != self.known \
-            and self._cand_sudden and not self._known_checked
+            and (self._cand_sudden or (self._cand_impossible and d.mirror_checked)) \
+            and not self._known_checked
 
     def _line_rate(self, t_s: float, kind: Kind) -> float | None:
         """The rate (Hz) at ``t_s`` of the line on which answers of ``kind`` were last
@@ -598,9 +617,25 @@ class Transitions:
             rate = min(rate, r0 + st.max_reversal_hz_s * max(float(t_s) - t0, 0.0))
         self._known_seen = (float(t_s), rate)
 
-    def _sudden_reversal(self, t_s: float, rate: float, cand: Kind) -> bool:
+    def _impossible_reversal(self, t_s: float, rate: float, cand: Kind) -> bool:
         """Whether an answer of ``cand`` at ``rate`` (Hz), the other way from the known
-        direction, comes within ``SUDDEN_SHARE`` of the time a fan needs to reverse (down
+        direction, comes sooner than a fan reverses at all (down through zero and up at
+        ``max_reversal_hz_s``) from when it was last seen turning the known way: in the
+        chain of answers (:meth:`_sudden_reversal`) or, for a direction confirmed by its
+        first answer (a start), at that answer."""
+        if self._sudden_reversal(t_s, rate, cand, 1.0):
+            return True
+        st = self.settings
+        if self.known not in WAY_KINDS or cand not in WAY_KINDS or cand == self.known \
+                or self._known_seen is None or not st.max_reversal_hz_s > 0:
+            return False
+        t, old = self._known_seen
+        return float(t_s) < t + _sudden_span(old, rate, st.max_reversal_hz_s, 1.0)
+
+    def _sudden_reversal(self, t_s: float, rate: float, cand: Kind,
+                         share: float = SUDDEN_SHARE) -> bool:
+        """Whether an answer of ``cand`` at ``rate`` (Hz), the other way from the known
+        direction, comes within ``share`` of the time a fan needs to reverse (down
         through zero and up at ``max_reversal_hz_s``) from when it was last seen turning
         (``_chain``: answers of the known way, answers without a direction at its speed,
         windows in doubt in a doubtful room), with no answer of rest between (the meter
@@ -612,7 +647,7 @@ class Transitions:
                 or self._chain is None or not st.max_reversal_hz_s > 0:
             return False
         t, old = self._chain
-        return float(t_s) < t + _sudden_span(old, rate, st.max_reversal_hz_s)
+        return float(t_s) < t + _sudden_span(old, rate, st.max_reversal_hz_s, share)
 
     def _soonest_reversal(self, t_s: float, rate: float) -> float | None:
         """When a fan last seen turning the known way could be seen turning the other
