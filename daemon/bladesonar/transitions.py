@@ -15,7 +15,8 @@ rule applies. :meth:`Transitions.step` is the rules in their order:
 2. ``LONE_ANSWER``: one answer of the old direction amid a stop's confirmation waits for
    the next;
 3. ``MIRROR_IMAGE``: the other way at once, at about the old speed, is the mirror of the
-   blade pattern unless its line has beaten its mirror image;
+   blade pattern unless its line has beaten its mirror image (so is the other way sooner
+   than a fan reverses at all, after a direction never shown to beat its mirror);
 4. ``REVERSAL_UNDER_WAY``: a stop waits while a fan seen slowing could be reversing
    through zero;
 5. ``TOO_SOON``: a reversal waits until a fan could have made it;
@@ -36,7 +37,7 @@ Events fire only on a change of the *known* state: ``started`` (stopped -> turni
 ``stopped`` (turning -> stopped), ``reversed`` (turning one way -> the other, whatever
 unknown stretch lay between, which is how a real fan reverses: through zero). The first
 known state fires nothing, nor does a direction found for a fan known to turn, nor a
-*correction*: a sudden run the other way (rule 3) whose line has beaten its mirror image,
+*correction*: a run the other way held by rule 3 whose line has beaten its mirror image,
 after a direction that never had, replaces a direction that was the mirror's. Both the
 daemon and ``analyze --track`` run this same code.
 """
