@@ -10,6 +10,7 @@ bound, no false event, never a wrong direction claimed.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -1370,6 +1371,12 @@ def test_a_run_the_other_way_sooner_than_any_reversal_after_an_unchecked_start_w
     assert tr.known_decision is not None and "corrected" in tr.known_decision.reason
     fired, _, tr = _walk(start + [_lost()] * 80 + run)
     assert fired == [("started", 56), ("reversed", 137 + 16)]
+    # in a doubtful room a mirror check says nothing: the checked run is a reversal
+    # once a fan could have made it (pulse 121), as before
+    checked = [replace(d, doubtful_room=True)
+               for d in start + gap + [_d("reversed", 0.35)] * 60]
+    fired, _, tr = _walk(checked)
+    assert fired == [("started", 56), ("reversed", 121)] and tr.known == Kind.REVERSED
 
 
 def test_a_decided_turn_is_no_rest_for_the_mirror_check_while_the_static_is_held(

@@ -585,9 +585,11 @@ class Transitions:
         spent held-out 2600009 a start's first 17 pulses on two tracks the mirror's way,
         after eight on the right one, and the right way 0.9 s later, which made a false
         reversal). Where both lines beat their mirrors, the physics and the check
-        disagree, and the reversal stands."""
+        disagree, and the reversal stands; so it does in a doubtful room, where a
+        check says nothing."""
         return self.known in WAY_KINDS and cand in WAY_KINDS and cand != self.known \
-            and (self._cand_sudden or (self._cand_impossible and d.mirror_checked)) \
+            and (self._cand_sudden or (self._cand_impossible and d.mirror_checked
+                                       and not d.doubtful_room)) \
             and not self._known_checked
 
     def _line_rate(self, t_s: float, kind: Kind) -> float | None:
