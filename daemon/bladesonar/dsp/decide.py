@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import functools
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -353,6 +352,26 @@ def _noise_readings(length: int, window: int, max_lag: int, band: float, smooth:
     return v
 
 
+class _Recent:
+    """The last ``keep`` values, for their median: a ring, since their order does not
+    move a median (a deque copied to an array at every reading cost half of
+    :class:`AcceptFloor`'s time, on the analysis's per-decision path)."""
+
+    def __init__(self, keep: int) -> None:
+        self._v = np.empty(int(keep))
+        self._count = 0
+
+    def add(self, x: float) -> None:
+        self._v[self._count % len(self._v)] = x
+        self._count += 1
+
+    def __len__(self) -> int:
+        return min(self._count, len(self._v))
+
+    def median(self) -> float:
+        return float(median(self._v[:len(self)]))
+
+
 class RestFloor:
     """The short meter's rest threshold, calibrated on what this device reads at rest.
 
@@ -373,16 +392,16 @@ class RestFloor:
         self.base, self.noise_median = float(base), float(noise_median)
         self.max_shift = float(max_shift)
         self.least = int(least)
-        self._seen: deque[float] = deque(maxlen=int(keep))
+        self._seen = _Recent(keep)
         self.threshold = self.base
 
     def note(self, still: float, at_rest: bool) -> float:
         """Add one decision's short-meter reading (``at_rest``: the tracker sees no
         motion); return the threshold to use now."""
         if at_rest and math.isfinite(still) and still < self.base + self.max_shift:
-            self._seen.append(float(still))
+            self._seen.add(float(still))
             if len(self._seen) >= self.least:
-                med = float(median(np.fromiter(self._seen, np.float64, len(self._seen))))
+                med = self._seen.median()
                 shift = min(max(med - self.noise_median, 0.0), self.max_shift)
                 self.threshold = self.base + shift
         return self.threshold
@@ -406,22 +425,16 @@ class AcceptFloor:
     def __init__(self, least_share: float, keep: int, least: int) -> None:
         self.least_share = float(least_share)
         self.least = int(least)
-        # the last ``keep`` shares, in a ring (their order does not move a median; a
-        # deque copied to an array at every settled decision cost half of this class's
-        # time, on the analysis's per-decision path)
-        self._seen = np.empty(int(keep))
-        self._count = 0
+        self._seen = _Recent(keep)
         self.typical = 1.0
 
     def note(self, accepted: float, settled: bool) -> float:
         """Add one window's share (``settled``: its track is old and clear of zero);
         return the share read against the device's typical one, in [0, 1]."""
         if settled and math.isfinite(accepted):
-            keep = len(self._seen)
-            self._seen[self._count % keep] = accepted
-            self._count += 1
-            if self._count >= self.least:
-                med = float(median(self._seen[:min(self._count, keep)]))
+            self._seen.add(accepted)
+            if len(self._seen) >= self.least:
+                med = self._seen.median()
                 self.typical = min(max(med, self.least_share), 1.0)
         return min(max(accepted, 0.0) / self.typical, 1.0) if math.isfinite(accepted) \
             else accepted
