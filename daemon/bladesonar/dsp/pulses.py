@@ -76,17 +76,17 @@ CLIP_JUMP = 0.5
 #: Measurements after which the loop's line has settled enough to tell a jump (alpha 0.1).
 CLIP_SETTLED = 40
 #: The coarse timing's error as a function of the sub-sample position, learned and taken
-#: out (:class:`_FractionBias`): that many positions, a line with this memory (pulses),
-#: run this many pulses before its residuals are kept, each
+#: out (:class:`_FractionBias`). The line starts once the schedule loop has BIAS_START
+#: measurements, on the loop's PRI (started on the nominal PRI it ran off by a sample
+#: within 40 pulses at 10 ppm); its memory is BIAS_LINE_MEMORY pulses, and its residuals
+#: are kept from BIAS_SETTLE measurements on, in BIAS_BINS sub-sample positions, each
 #: position's mean over at most BIAS_MEMORY of them, used once that position has
 #: BIAS_LEAST (some positions may never be timed coarsely: the ringing times them).
-BIAS_BINS = 32
-#: The schedule loop's measurements before the line starts, on the loop's PRI (a line
-#: started on the nominal PRI ran off by a sample within 40 pulses at 10 ppm).
 BIAS_START = 200
 BIAS_LINE_MEMORY = 1000.0
 BIAS_LAMBDA = 1.0 - 1.0 / BIAS_LINE_MEMORY
 BIAS_SETTLE = 1000
+BIAS_BINS = 32
 BIAS_MEMORY = 64
 BIAS_LEAST = 8
 #: Samples past a clipped coupling's last clipped sample that still belong to it: the
@@ -107,6 +107,7 @@ TAIL_MIN = 24
 #: on a synthetic one; one with no ringing (an ideal speaker), noise and near echoes
 #: only, -0.06 to 0.5, and is timed from the plateaus' edges.
 TAIL_MIN_CORR = 0.9
+
 
 class _FractionBias:
     """The error of a clipped coupling timed from its plateaus' edges, as a function of
