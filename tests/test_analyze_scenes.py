@@ -329,6 +329,26 @@ def test_reference_near_a_small_fraction_is_warned_about(scene, reference):
     assert any("of 1/17:" in w for w in reference(4).meta["warnings"])
 
 
+def test_reference_whose_pulses_leave_angles_unseen_is_warned_about(scene):
+    """At 1/40 blade period per pulse (past the fractions the alias check looks at) every
+    period shows the same 40 angles, one pulse step apart, and nothing fills the steps
+    between: warned, with the gap (one step, less what the estimated rate slips over the
+    recording) and the fix. 3 % faster, 408 pulses slip through 12 steps and fill them."""
+    cfg = _cfg()
+    hz = _commensurate_hz(1, 40)
+    x, _ = _sim(scene, 12.0, f"ccw:{hz:.6f}:12", seed=1)
+    ref = build_reference(x, cfg, "ccw")
+    got = [w for w in ref.meta["warnings"] if "leave gaps" in w]
+    assert len(got) == 1 and "another fan speed" in got[0], ref.meta["warnings"]
+    assert not any("blade angles, so" in w for w in ref.meta["warnings"])
+    steps = float(got[0].split("leave gaps of ")[1].split()[0])
+    r = ref.meta["cycles_per_pulse"]
+    assert 1.0 - 400 * abs(r - 1 / 40) * 40 - 0.02 <= steps <= 1.0, (steps, r)
+    x, _ = _sim(scene, 12.0, f"ccw:{1.03 * hz:.6f}:12", seed=1)
+    ref = build_reference(x, cfg, "ccw")
+    assert not any("leave gaps" in w for w in ref.meta["warnings"]), ref.meta["warnings"]
+
+
 def test_reference_whose_rate_may_be_an_alias_is_warned_about(scene):
     """At 1/9 blade period per pulse the paper room shows the blades at few of the 9
     angles and the period search cannot order them: whatever rate it settles on (2/9

@@ -143,6 +143,14 @@ class Reference:
 #: 6 such places were in doubt for minutes or flipped (right 26-82 %; the others 93.8-97.1 %),
 #: against none of the 6 at 5-8 (90-97 %) and 2 of the 46 above (83 and 85 %).
 PLACE_CONTRAST = 5.0
+#: Widest gap between the blade angles a reference's pulses show, in pulse steps (its
+#: cycles per pulse), over which it is warned about. Folding a rate that is not near a
+#: whole number of pulses per period fills the angles between pulses: 40 spent random
+#: scenes' references (2700001-2800020) left at most 0.19 of a step open, the two slow
+#: ones near 1/50 and 1/73 period per pulse 0.81 and 0.89, and one of those (a 0.227 Hz
+#: fan matched at its own speed, where every pulse falls between the measured angles)
+#: was in doubt three quarters of its day. Half a step lies between.
+FILL_GAP = 0.5
 #: What the place warnings advise (tools/days.py acts on it as a user would).
 PLACE_ADVICE = ("a place nearer a wall, further off the fan's axis, makes the wall echoes "
                 "that tell the directions apart stronger")
@@ -371,6 +379,15 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     bins = fp.auto_bins(r, a.phase_bins,
                         angles=folded.denominator if folded is not None else None)
     phases = fp.fold_phases(k, r)
+    gap = fp.largest_gap(phases) / r if r > 0 else 0.0
+    if folded is None and gap > FILL_GAP:
+        warnings.append(
+            f"the reference turns {r:.6f} blade periods per pulse, so nearly a whole number "
+            f"of pulses per period that its {span} pulses leave gaps of {gap:.2f} pulse "
+            f"steps between the blade angles they show (folding fills them to under "
+            f"{FILL_GAP:g} when the period is not a whole number of pulses): the table is "
+            f"interpolated across them and a fan turning at this speed matches it poorly; "
+            f"record the reference at another fan speed, a few percent faster or slower")
     table, weight = fp.build_table(feats, phases, bins)
     halves = fp.cross_tables(feats, phases, bins)
     twins = fp.twin_bins(feats, phases, bins, halves)

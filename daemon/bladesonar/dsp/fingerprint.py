@@ -152,6 +152,15 @@ def fold_phases(k: np.ndarray, cycles_per_pulse: float, k0: float = 0.0) -> np.n
     return np.mod(cycles_per_pulse * (np.asarray(k, dtype=np.float64) - k0), 1.0)
 
 
+def largest_gap(phases: np.ndarray) -> float:
+    """The widest stretch of blade phase (cycles, circular) that no pulse fell in: there
+    the table is interpolated between the angles on either side, not measured."""
+    ph = np.sort(np.mod(np.asarray(phases, dtype=np.float64), 1.0))
+    if len(ph) < 2:
+        return 1.0
+    return float(max(np.diff(ph).max(initial=0.0), ph[0] + 1.0 - ph[-1]))
+
+
 def auto_bins(cycles_per_pulse: float, requested: int = 0, angles: int | None = None
               ) -> int:
     """Phase bins of the table: ``requested``, or four per reference pulse step (16..256),
