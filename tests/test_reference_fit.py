@@ -90,8 +90,12 @@ def test_learn_job_writes_a_valid_reference_and_keeps_the_old_one(learned, tmp_p
     assert info["quality"] >= cfg.reference.min_quality
     p = tmp_path / "reference.npz"
     p.write_bytes(path.read_bytes())
-    again = learner.learn(x, cfg, "cw", p)
+    again = learner.learn(x, cfg, "cw", p, why="auto")
     assert read_reference(p)[0].meta["direction"] == "cw" and again["direction"] == "cw"
+    # the file says why the daemon learned it (the keeper learns its own again at
+    # another speed, not a person's): the default is a person's command
+    assert ref.meta["learned_by"] == "command"
+    assert read_reference(p)[0].meta["learned_by"] == "auto"
     assert read_reference(previous_path(p))[1] == digest        # the old one, whole
     assert sorted(q.name for q in tmp_path.iterdir()) == ["reference.npz",
                                                          "reference.npz.previous"]

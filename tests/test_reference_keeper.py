@@ -14,8 +14,13 @@ from typing import Any
 
 from bladesonar import config
 from bladesonar.errors import ReferenceFileError, ReferenceMissingError
+from bladesonar.reference_build import SPEED_ADVICE
 from bladesonar.service.airflow_watch import AirflowWatch
-from bladesonar.service.reference_keeper import REFERENCE_POLL_S, ReferenceKeeper
+from bladesonar.service.reference_keeper import (
+    OTHER_SPEED_S,
+    REFERENCE_POLL_S,
+    ReferenceKeeper,
+)
 
 
 class Events:
@@ -114,3 +119,58 @@ def test_missing_then_written_then_replaced(tmp_path: Path) -> None:
     t[0] += REFERENCE_POLL_S
     k.poll(t[0], busy=False)
     assert [e for e, _ in host.publisher.sent] == ["reference_missing", "reference_invalid"]
+
+
+def test_a_reference_the_daemon_learned_at_a_poor_speed_is_learned_again_at_another(
+        tmp_path: Path) -> None:
+    """A reference the daemon learned by itself whose warnings ask for another fan speed
+    (reference_build.SPEED_ADVICE: its pulses show few of the blade angles) is learned
+    again once the fan has turned steadily at a speed 3 % or more off for OTHER_SPEED_S
+    of fit samples (one a second): not at 0.2 % off, not before the time is up, not once
+    the speed is unsettled (the count starts again), and never for a reference a person
+    made or asked for, one without the warning, or with reference.auto_learn off. The
+    analyzer is a stand-in whose published speed the test sets (see the module)."""
+    warned = [f"the reference turns 0.019994 blade periods per pulse ...; {SPEED_ADVICE}"]
+
+    def run(meta: dict[str, Any], speeds: list[float | None], auto: bool = True
+            ) -> list[str | None]:
+        cfg = config.from_mapping({"daemon": {"state_dir": str(tmp_path / "state")},
+                                   "reference": {"auto_learn": auto}})
+        Path(cfg.reference_path).parent.mkdir(parents=True, exist_ok=True)
+        Path(cfg.reference_path).write_text("ref-A")
+        speed: list[float | None] = [None]
+
+        def loader(c: config.Config) -> Any:
+            return types.SimpleNamespace(meta={"id": "ref-A", "direction": "cw",
+                                               "quality": 0.9, "rate_hz": 0.2266, **meta})
+
+        def factory(c: config.Config, ref: Any) -> Any:
+            return types.SimpleNamespace(reference_id="ref-A",
+                                         fit_sample=lambda: (True, 0.9),
+                                         steady_rate_hz=lambda: speed[0])
+
+        t = [100.0]
+        k = ReferenceKeeper(Host(cfg), reference_loader=loader, analyzer_factory=factory,
+                            notifier=NullNotifier(), clock=lambda: t[0])  # type: ignore[arg-type]
+        assert k.poll(t[0], busy=False) is True
+        due: list[str | None] = []
+        for v in speeds:
+            t[0] += 1.0
+            speed[0] = v
+            k.sample_fit(t[0])
+            due.append(k.learn_due(t[0]))
+        return due
+
+    ours = {"warnings": warned, "learned_by": "auto"}
+    n = int(OTHER_SPEED_S)
+    assert run(ours, [0.227] * 30) == [None] * 30                 # 0.2 % off: the same speed
+    got = run(ours, [0.236] * (n + 1))                            # 4 % faster
+    assert got[:n] == [None] * n and got[n] == "speed", got
+    got = run(ours, [0.219] * (n - 1) + [None] + [0.219] * (n + 1))   # 3.4 % slower
+    assert got.index("speed") == 2 * n, got                       # counted again from the gap
+    assert run({**ours, "learned_by": "relearn"}, [0.236] * (n + 1))[-1] == "speed"
+    for meta, auto in (({"warnings": warned, "learned_by": "command"}, True),
+                       ({"warnings": warned}, True),              # made by a person
+                       ({"warnings": [], "learned_by": "auto"}, True),
+                       (ours, False)):
+        assert set(run(meta, [0.236] * (3 * n), auto=auto)) == {None}, (meta, auto)

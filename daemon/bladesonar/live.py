@@ -208,6 +208,16 @@ class LiveAnalyzer:
                           self.cfg.tracking.rate_floor_hz)
         return Estimate.from_decision(d, window_s=window, reference=self.reference_id)
 
+    def steady_rate_hz(self) -> float | None:
+        """The published speed while the fan turns one way at a settled rate, else None
+        (what the reference keeper compares with the reference's speed)."""
+        an = self.analyzer
+        d = an.state if an is not None else None
+        if d is None or d.direction not in WAYS or d.rate_state != RateState.SETTLED \
+                or d.rate_hz is None:
+            return None
+        return float(d.rate_hz)
+
     def fit_sample(self) -> tuple[bool, float] | None:
         """(is the fan moving, mean match quality of the last window) for the reference
         fit watch (reference_fit.py); None while warming up. Moving is the long motion

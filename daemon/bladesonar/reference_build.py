@@ -91,6 +91,9 @@ class ReferenceMeta(TypedDict, total=False):
     twin_bins: list[int]
     """Per table bin, the bin whose pulses its clear matches often came from, or -1
     (:func:`fingerprint.twin_bins`); only when some bin has one (older files: none)."""
+    learned_by: str
+    """Why the daemon learned it (service/learner.py: auto, relearn, speed, command);
+    absent when a person made it with ``reference``."""
 
 
 @dataclass
@@ -151,6 +154,9 @@ PLACE_CONTRAST = 5.0
 #: fan matched at its own speed, where every pulse falls between the measured angles)
 #: was in doubt three quarters of its day. Half a step lies between.
 FILL_GAP = 0.5
+#: What the warnings about a reference's speed advise (the daemon's keeper learns its own
+#: such reference again at another speed: service/reference_keeper.py).
+SPEED_ADVICE = "record the reference at another fan speed, a few percent faster or slower"
 #: What the place warnings advise (tools/days.py acts on it as a user would).
 PLACE_ADVICE = ("a place nearer a wall, further off the fan's axis, makes the wall echoes "
                 "that tell the directions apart stronger")
@@ -375,7 +381,7 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
             f"{abs(r - p / q):.1e} of {p}/{q}: its {span} pulses show only {q} blade angles, "
             f"so the table holds only those (interpolated between) and the rate itself may "
             f"be an alias (another m/{q}; the record cannot tell the order of the angles); "
-            f"record the reference at another fan speed, a few percent faster or slower")
+            f"{SPEED_ADVICE}")
     bins = fp.auto_bins(r, a.phase_bins,
                         angles=folded.denominator if folded is not None else None)
     phases = fp.fold_phases(k, r)
@@ -387,7 +393,7 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
             f"steps between the blade angles they show (folding fills them to under "
             f"{FILL_GAP:g} when the period is not a whole number of pulses): the table is "
             f"interpolated across them and a fan turning at this speed matches it poorly; "
-            f"record the reference at another fan speed, a few percent faster or slower")
+            f"{SPEED_ADVICE}")
     table, weight = fp.build_table(feats, phases, bins)
     halves = fp.cross_tables(feats, phases, bins)
     twins = fp.twin_bins(feats, phases, bins, halves)

@@ -125,8 +125,8 @@ class ReferenceJobs:
 
 
 def learn(x: np.ndarray, cfg: Config, direction: str, path: Path,
-          carried: str = "unknown", estimates: dict[str, int] | None = None
-          ) -> dict[str, Any]:
+          carried: str = "unknown", estimates: dict[str, int] | None = None,
+          why: str = "command") -> dict[str, Any]:
     """Fold ``x`` (a contiguous recording of the fan turning) into a reference, check it,
     keep the old file as ``.previous`` and write the new one atomically; the reference's
     summary (with the airflow measured on ``x``, ``direction_source`` and what decided
@@ -148,6 +148,7 @@ def learn(x: np.ndarray, cfg: Config, direction: str, path: Path,
                                carried if carried in ("cw", "ccw") else None)
     direction, source = chosen.direction, chosen.source
     ref = build_reference(x, cfg, direction)
+    ref.meta["learned_by"] = why      # (what started it: auto, relearn, speed, command)
     if chosen.warnings:
         ref.meta["warnings"] = [*ref.meta.get("warnings", []), *chosen.warnings]
     check_compatible(ref, cfg)

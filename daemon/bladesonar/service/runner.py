@@ -642,7 +642,7 @@ class Service:
     def _record(self, block: PulseBlock) -> None:
         rec = self._rec
         assert rec is not None
-        if rec.why == "relearn" and not self.keeper.moving:
+        if rec.why in ("relearn", "speed") and not self.keeper.moving:
             log.info("the fan stopped while recording a reference; trying again later")
             self._rec = None
             self.keeper.retry_later()
@@ -662,7 +662,7 @@ class Service:
         x = rec.samples()
         self._rec = None
         if not self.jobs.submit("learn", learner.learn, x, self.cfg, direction,
-                                self.cfg.reference_path, carried, estimates):
+                                self.cfg.reference_path, carried, estimates, rec.why):
             log.warning("a reference job is running; the recording is dropped")
             return
         self._learn_why = rec.why
