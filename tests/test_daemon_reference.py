@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from bladesonar.io.reference import previous_path, read_reference
+from bladesonar.reference_build import SPEED_ADVICE
 from loopback import ROOT, SCENE, bladesonar_cmd, write_config
 from mosquitto import Mosquitto, Subscriber, require_mosquitto
 from test_daemon_e2e import NotifySocket, start_daemon, stop_daemon
@@ -242,6 +243,45 @@ def test_a_reference_that_no_longer_fits_is_called_stale_and_relearned(tmp_path)
                 # and published as what it was
                 assert all(p["status"] in ("reference_stale", "learning") for p in states), \
                     states
+            finally:
+                rc = stop_daemon(proc, signal.SIGTERM)
+        assert rc == 0
+
+
+def test_a_reference_learned_at_a_poor_speed_is_learned_again_at_another(tmp_path):
+    """Zero-config, a fan at exactly 1/40 blade period per pulse: the reference the daemon
+    learns shows the same 40 angles every period and warns that it needs another fan
+    speed (reference_build.SPEED_ADVICE). The fan then turns 4 % faster: the daemon learns
+    again by itself (the event's source `speed`), and the new file, learned at the new
+    speed, carries no such warning and says why it was learned."""
+    require_mosquitto()
+    from bladesonar import config
+
+    c = config.Config()
+    poor = c.prf_hz / 40.0 / c.scene.blades                    # Hz: 1/40 period per pulse
+    with Mosquitto(tmp_path / "broker") as broker:
+        cfg = daemon_config(tmp_path, broker.port)
+        cfg.write_text(cfg.read_text().replace(
+            "ccw:0.45:600", f"ccw:{poor:.6f}:40,ccw:{1.04 * poor:.6f}:600~2"))
+        assert f"ccw:{poor:.6f}:40" in cfg.read_text()
+        ref_path = tmp_path / "state" / "reference.npz"
+        with Subscriber(broker.port, ["bladesonar/#"]) as sub:
+            proc = start_daemon(cfg, dict(os.environ), None, tmp_path / "daemon.log")
+            try:
+                first = wait_event(sub, "reference_learned", timeout=120)["details"]
+                assert first["source"] == "auto"
+                assert first["rate_hz"] == pytest.approx(poor, rel=0.01)
+                assert any(SPEED_ADVICE in w for w in first["warnings"]), first["warnings"]
+                again = wait_event(sub, "reference_learned", 2, timeout=180)["details"]
+                assert again["source"] == "speed"
+                assert again["rate_hz"] == pytest.approx(1.04 * poor, rel=0.01)
+                assert not any(SPEED_ADVICE in w for w in again["warnings"])
+                ref, digest = read_reference(ref_path)
+                assert digest[:12] == again["reference"]
+                assert ref.meta["learned_by"] == "speed"
+                assert read_reference(previous_path(ref_path))[0].meta["learned_by"] == "auto"
+                time.sleep(2.0)
+                assert len(events(sub, "reference_learned")) == 2     # and no more
             finally:
                 rc = stop_daemon(proc, signal.SIGTERM)
         assert rc == 0

@@ -126,14 +126,16 @@ def test_a_reference_the_daemon_learned_at_a_poor_speed_is_learned_again_at_anot
     """A reference the daemon learned by itself whose warnings ask for another fan speed
     (reference_build.SPEED_ADVICE: its pulses show few of the blade angles) is learned
     again once the fan has turned steadily at a speed 3 % or more off for OTHER_SPEED_S
-    of fit samples (one a second): not at 0.2 % off, not before the time is up, not once
-    the speed is unsettled (the count starts again), and never for a reference a person
-    made or asked for, one without the warning, or with reference.auto_learn off. The
-    analyzer is a stand-in whose published speed the test sets (see the module)."""
+    of fit samples (one a second), or at once when the airflow's reference-free window
+    measures such a speed from the blade period: not at 0.2 % off, not before the time
+    is up, not once the speed is unsettled (the count starts again), and never for a
+    reference a person made or asked for, one without the warning, or with
+    reference.auto_learn off. The analyzer is a stand-in whose published speed the test
+    sets (see the module)."""
     warned = [f"the reference turns 0.019994 blade periods per pulse ...; {SPEED_ADVICE}"]
 
-    def run(meta: dict[str, Any], speeds: list[float | None], auto: bool = True
-            ) -> list[str | None]:
+    def run(meta: dict[str, Any], speeds: list[float | None], auto: bool = True,
+            window: float | None = None) -> list[str | None]:
         cfg = config.from_mapping({"daemon": {"state_dir": str(tmp_path / "state")},
                                    "reference": {"auto_learn": auto}})
         Path(cfg.reference_path).parent.mkdir(parents=True, exist_ok=True)
@@ -153,6 +155,8 @@ def test_a_reference_the_daemon_learned_at_a_poor_speed_is_learned_again_at_anot
         k = ReferenceKeeper(Host(cfg), reference_loader=loader, analyzer_factory=factory,
                             notifier=NullNotifier(), clock=lambda: t[0])  # type: ignore[arg-type]
         assert k.poll(t[0], busy=False) is True
+        if k.speed_watched:
+            k.note_window_speed(window)
         due: list[str | None] = []
         for v in speeds:
             t[0] += 1.0
@@ -169,8 +173,12 @@ def test_a_reference_the_daemon_learned_at_a_poor_speed_is_learned_again_at_anot
     got = run(ours, [0.219] * (n - 1) + [None] + [0.219] * (n + 1))   # 3.4 % slower
     assert got.index("speed") == 2 * n, got                       # counted again from the gap
     assert run({**ours, "learned_by": "relearn"}, [0.236] * (n + 1))[-1] == "speed"
+    # the blade period's window: another speed at once, whatever the answers say
+    assert run(ours, [None] * 3, window=-0.236) == ["speed"] * 3
+    assert run(ours, [None] * 3, window=0.227) == [None] * 3
     for meta, auto in (({"warnings": warned, "learned_by": "command"}, True),
                        ({"warnings": warned}, True),              # made by a person
                        ({"warnings": [], "learned_by": "auto"}, True),
                        (ours, False)):
-        assert set(run(meta, [0.236] * (3 * n), auto=auto)) == {None}, (meta, auto)
+        assert set(run(meta, [0.236] * (3 * n), auto=auto, window=0.236)) == {None}, \
+            (meta, auto)

@@ -111,6 +111,8 @@ class ReferenceKeeper:
         #: since when the fan has turned steadily at another speed than a reference
         #: learned at a poor one (``other_speed_due``); None: not now
         self._other_since: float | None = None
+        #: the latest blade-period window (reference-free) found another speed
+        self._other_window = False
 
     # -- the file ------------------------------------------------------------------------
 
@@ -195,7 +197,7 @@ class ReferenceKeeper:
         self.fit = FitWatch(q, stale_fit=r.stale_fit, span_s=r.stale_after_s) if q > 0 \
             else None
         self._stale_reported = False
-        self._other_since = None
+        self._other_since, self._other_window = None, False
         host.airflow.contradiction = Contradiction()     # judged against this one afresh
         if self.pending_direction is not None \
                 and ref.meta.get("direction") == self.pending_direction:
@@ -270,31 +272,46 @@ class ReferenceKeeper:
             return r.auto_learn if self.missing else r.auto_relearn
         return r.auto_relearn and self.fit is not None and self.fit.stale
 
+    def _other_speed(self, rate_hz: float | None) -> bool:
+        """Whether ``rate_hz`` is ``OTHER_SPEED_SHARE`` or more off the reference's."""
+        ref_hz = self.reference.meta.get("rate_hz") if self.reference is not None else None
+        return isinstance(ref_hz, (int, float)) and ref_hz > 0 and rate_hz is not None \
+            and abs(abs(rate_hz) / ref_hz - 1.0) >= OTHER_SPEED_SHARE
+
     def _note_speed(self, now: float, rate_hz: float | None) -> None:
         """Follow how long the fan has turned steadily at another speed than the
-        reference's (``OTHER_SPEED_SHARE`` or more off; ``rate_hz``: the published speed
-        while it is settled, else None)."""
-        ref_hz = self.reference.meta.get("rate_hz") if self.reference is not None else None
-        other = isinstance(ref_hz, (int, float)) and ref_hz > 0 and rate_hz is not None \
-            and abs(rate_hz / ref_hz - 1.0) >= OTHER_SPEED_SHARE
-        if not other:
+        reference's (``rate_hz``: the published speed while it is settled, else None)."""
+        if not self._other_speed(rate_hz):
             self._other_since = None
         elif self._other_since is None:
             self._other_since = now
+
+    @property
+    def speed_watched(self) -> bool:
+        """Whether the reference is one the daemon would learn again at another speed
+        (``other_speed_due``): the airflow window then measures the blade period too."""
+        ref = self.reference
+        return ref is not None and self.host.cfg.reference.auto_learn \
+            and ref.meta.get("learned_by") in ("auto", "relearn", "speed") \
+            and any(SPEED_ADVICE in str(w) for w in ref.meta.get("warnings") or [])
+
+    def note_window_speed(self, rate_hz: float | None) -> None:
+        """A reference-free measurement of the speed from the blade period over the
+        airflow's window (12 s of a steady period, or none): a poor reference's own
+        answers may be unknown or unsettled at another speed."""
+        self._other_window = self._other_speed(rate_hz)
 
     def other_speed_due(self, now: float) -> bool:
         """Whether to learn again a reference the daemon learned by itself at a speed its
         table holds poorly (its warnings ask for another fan speed: a period of nearly a
         whole number of pulses), now that the fan has turned steadily at another speed
-        for ``OTHER_SPEED_S``. Nobody reads the warning on a zero-config device; a person
+        for ``OTHER_SPEED_S`` of settled answers, or over the latest blade-period window
+        (``note_window_speed``). Nobody reads the warning on a zero-config device; a person
         who made or asked for the reference has read it, and it is left alone."""
-        ref = self.reference
-        if ref is None or not self.host.cfg.reference.auto_learn or not self.moving \
-                or ref.meta.get("learned_by") not in ("auto", "relearn", "speed"):
+        if not self.speed_watched or not self.moving:
             return False
-        if not any(SPEED_ADVICE in str(w) for w in ref.meta.get("warnings") or []):
-            return False
-        return self._other_since is not None and now - self._other_since >= OTHER_SPEED_S
+        return self._other_window or (self._other_since is not None
+                                      and now - self._other_since >= OTHER_SPEED_S)
 
     def learn_due(self, now: float) -> str | None:
         """Zero-config: why to start recording a reference now (auto, relearn, speed), or

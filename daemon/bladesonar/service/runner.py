@@ -494,6 +494,9 @@ class Service:
     def _maybe_measure_airflow(self) -> None:
         """Submit the airflow window when due (its own worker thread)."""
         learning = self.reference is None
+        # the blade period's rate too: before a reference (published), and for one the
+        # daemon would learn again at another speed (reference_keeper.other_speed_due)
+        rate = learning or self.keeper.speed_watched
         x = self.airflow.due()
         if x is None or self.airflow_jobs.busy:
             return
@@ -502,7 +505,7 @@ class Service:
         cfg = self.cfg           # as it is now: a reload must not change a job under way
 
         def job() -> Any:
-            return window_figures(x, cfg, rate=learning)
+            return window_figures(x, cfg, rate=rate)
 
         if self.airflow_jobs.submit("airflow", job):
             self.airflow.submitted(learning)
@@ -517,6 +520,8 @@ class Service:
                               else None)
             f = self.airflow.current()
             log.debug("airflow %s", f.airflow if f is not None else res.error)
+            if self.keeper.speed_watched:
+                self.keeper.note_window_speed(res.value.rate_hz if res.ok else None)
             now = self.airflow.contradiction.active
             if now and not was:
                 log.warning("%s", self._status()[1])
