@@ -494,12 +494,12 @@ class Service:
     def _maybe_measure_airflow(self) -> None:
         """Submit the airflow window when due (its own worker thread)."""
         learning = self.reference is None
-        # the blade period's rate too: before a reference (published), and for one the
-        # daemon would learn again at another speed (reference_keeper.other_speed_due)
-        rate = learning or self.keeper.speed_watched
         x = self.airflow.due()
         if x is None or self.airflow_jobs.busy:
             return
+        # the blade period's rate too: before a reference (published), and for one the
+        # daemon would learn again at another speed (reference_keeper.other_speed_due)
+        rate = learning or self.keeper.speed_watched
         from ..airflow_recording import window_figures
 
         cfg = self.cfg           # as it is now: a reload must not change a job under way
