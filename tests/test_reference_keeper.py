@@ -16,6 +16,7 @@ from bladesonar import config
 from bladesonar.errors import ReferenceFileError, ReferenceMissingError
 from bladesonar.reference_build import SPEED_ADVICE
 from bladesonar.service.airflow_watch import AirflowWatch
+from bladesonar.service.learner import JobResult
 from bladesonar.service.reference_keeper import (
     OTHER_SPEED_S,
     REFERENCE_POLL_S,
@@ -176,6 +177,38 @@ def test_a_reference_the_daemon_learned_at_a_poor_speed_is_learned_again_at_anot
     # the blade period's window: another speed at once, whatever the answers say
     assert run(ours, [None] * 3, window=-0.236) == ["speed"] * 3
     assert run(ours, [None] * 3, window=0.227) == [None] * 3
+    # one relearn at another speed per reference.retry_max_s, whatever the window says
+    # after it (a misread speed must not make a learning loop)
+    cfg = config.from_mapping({"daemon": {"state_dir": str(tmp_path / "state2")}})
+    Path(cfg.reference_path).parent.mkdir(parents=True)
+    Path(cfg.reference_path).write_text("ref-A")
+    t = [100.0]
+
+    def loader(c: config.Config) -> Any:
+        return types.SimpleNamespace(meta={"id": "ref-A", "direction": "cw", "quality": 0.9,
+                                           "rate_hz": 0.2266, **ours})
+
+    def factory(c: config.Config, ref: Any) -> Any:
+        return types.SimpleNamespace(reference_id="ref-A", fit_sample=lambda: (True, 0.9),
+                                     steady_rate_hz=lambda: None)
+
+    k = ReferenceKeeper(Host(cfg), reference_loader=loader, analyzer_factory=factory,
+                        notifier=NullNotifier(), clock=lambda: t[0])  # type: ignore[arg-type]
+    assert k.poll(t[0], busy=False) is True
+    k.sample_fit(t[0])
+    k.note_window_speed(0.236)
+    assert k.learn_due(t[0]) == "speed"
+    assert k.learned(JobResult("learn", value={"id": "ref-B", "warnings": []}), "speed")
+    t[0] += REFERENCE_POLL_S
+    assert k.poll(t[0], busy=False) is True         # (the stand-in reads ref-A's warning)
+    k.note_window_speed(0.25)
+    for dt in (60.0, cfg.reference.retry_max_s - 60.0 - REFERENCE_POLL_S - 1.0):
+        t[0] += dt
+        k.sample_fit(t[0])
+        assert k.learn_due(t[0]) is None
+    t[0] += 1.0
+    k.sample_fit(t[0])
+    assert k.learn_due(t[0]) == "speed"
     for meta, auto in (({"warnings": warned, "learned_by": "command"}, True),
                        ({"warnings": warned}, True),              # made by a person
                        ({"warnings": [], "learned_by": "auto"}, True),

@@ -113,6 +113,9 @@ class ReferenceKeeper:
         self._other_since: float | None = None
         #: the latest blade-period window (reference-free) found another speed
         self._other_window = False
+        #: no relearn at another speed before this time (one per reference.retry_max_s:
+        #: a window that misread the speed must not make a learning loop)
+        self._speed_after = 0.0
 
     # -- the file ------------------------------------------------------------------------
 
@@ -308,7 +311,7 @@ class ReferenceKeeper:
         for ``OTHER_SPEED_S`` of settled answers, or over the latest blade-period window
         (``note_window_speed``). Nobody reads the warning on a zero-config device; a person
         who made or asked for the reference has read it, and it is left alone."""
-        if not self.speed_watched or not self.moving:
+        if not self.speed_watched or not self.moving or now < self._speed_after:
             return False
         return self._other_window or (self._other_since is not None
                                       and now - self._other_since >= OTHER_SPEED_S)
@@ -350,6 +353,8 @@ class ReferenceKeeper:
             self.learn_failure = None
             self.learn_note = None
             self.learn_wait = cfg.reference.retry_s
+            if why == "speed":
+                self._speed_after = self.clock() + cfg.reference.retry_max_s
             log.info("reference learned (%s): %s, %.3f Hz, quality %.2f, direction %s (%s; "
                      "carried %s, airflow %s, confidence %s, t %s: %s)", why,
                      info.get("id"), info.get("rate_hz", float("nan")),
