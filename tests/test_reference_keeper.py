@@ -135,13 +135,14 @@ def test_a_reference_the_daemon_learned_at_a_poor_speed_is_learned_again_at_anot
     sets (see the module)."""
     warned = [f"the reference turns 0.019994 blade periods per pulse ...; {SPEED_ADVICE}"]
 
-    def run(meta: dict[str, Any], speeds: list[float | None], auto: bool = True,
-            window: float | None = None) -> list[str | None]:
+    def keeper(meta: dict[str, Any], auto: bool, speed: list[float | None]
+               ) -> tuple[ReferenceKeeper, list[float]]:
+        """A keeper with a loaded stand-in reference of ``meta`` (0.2266 Hz) whose
+        analyzer publishes ``speed[0]``; its clock, a number in a list."""
         cfg = config.from_mapping({"daemon": {"state_dir": str(tmp_path / "state")},
                                    "reference": {"auto_learn": auto}})
         Path(cfg.reference_path).parent.mkdir(parents=True, exist_ok=True)
         Path(cfg.reference_path).write_text("ref-A")
-        speed: list[float | None] = [None]
 
         def loader(c: config.Config) -> Any:
             return types.SimpleNamespace(meta={"id": "ref-A", "direction": "cw",
@@ -156,6 +157,12 @@ def test_a_reference_the_daemon_learned_at_a_poor_speed_is_learned_again_at_anot
         k = ReferenceKeeper(Host(cfg), reference_loader=loader, analyzer_factory=factory,
                             notifier=NullNotifier(), clock=lambda: t[0])  # type: ignore[arg-type]
         assert k.poll(t[0], busy=False) is True
+        return k, t
+
+    def run(meta: dict[str, Any], speeds: list[float | None], auto: bool = True,
+            window: float | None = None) -> list[str | None]:
+        speed: list[float | None] = [None]
+        k, t = keeper(meta, auto, speed)
         if k.speed_watched:
             k.note_window_speed(window)
         due: list[str | None] = []
@@ -179,22 +186,7 @@ def test_a_reference_the_daemon_learned_at_a_poor_speed_is_learned_again_at_anot
     assert run(ours, [None] * 3, window=0.227) == [None] * 3
     # one relearn at another speed per reference.retry_max_s, whatever the window says
     # after it (a misread speed must not make a learning loop)
-    cfg = config.from_mapping({"daemon": {"state_dir": str(tmp_path / "state2")}})
-    Path(cfg.reference_path).parent.mkdir(parents=True)
-    Path(cfg.reference_path).write_text("ref-A")
-    t = [100.0]
-
-    def loader(c: config.Config) -> Any:
-        return types.SimpleNamespace(meta={"id": "ref-A", "direction": "cw", "quality": 0.9,
-                                           "rate_hz": 0.2266, **ours})
-
-    def factory(c: config.Config, ref: Any) -> Any:
-        return types.SimpleNamespace(reference_id="ref-A", fit_sample=lambda: (True, 0.9),
-                                     steady_rate_hz=lambda: None)
-
-    k = ReferenceKeeper(Host(cfg), reference_loader=loader, analyzer_factory=factory,
-                        notifier=NullNotifier(), clock=lambda: t[0])  # type: ignore[arg-type]
-    assert k.poll(t[0], busy=False) is True
+    k, t = keeper(ours, True, [None])
     k.sample_fit(t[0])
     k.note_window_speed(0.236)
     assert k.learn_due(t[0]) == "speed"
@@ -202,7 +194,7 @@ def test_a_reference_the_daemon_learned_at_a_poor_speed_is_learned_again_at_anot
     t[0] += REFERENCE_POLL_S
     assert k.poll(t[0], busy=False) is True         # (the stand-in reads ref-A's warning)
     k.note_window_speed(0.25)
-    for dt in (60.0, cfg.reference.retry_max_s - 60.0 - REFERENCE_POLL_S - 1.0):
+    for dt in (60.0, k.host.cfg.reference.retry_max_s - 60.0 - REFERENCE_POLL_S - 1.0):
         t[0] += dt
         k.sample_fit(t[0])
         assert k.learn_due(t[0]) is None
