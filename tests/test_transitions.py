@@ -1253,6 +1253,30 @@ def test_in_a_doubtful_room_a_fan_seen_turning_throughout_does_not_reverse():
     assert fired == [("reversed", 380 + 16)]
 
 
+def test_in_a_doubtful_room_doubt_at_another_speed_ends_the_chain_once_a_reversal_could_be_made():
+    """Closed form (the spent held-out scene 2700002 at 1320 s): 'same' at 0.14 Hz to
+    pulse 39, then 10 s in doubt at 0.23 Hz (the reversed fan spun up again, its
+    direction in doubt in a room whose echoes fit either way alike), then the other way
+    at 0.23 Hz on a line that beat its mirror. From 0.14 Hz the known way, 0.23 Hz the
+    other way is reached through zero in (0.14 + 0.23) / 0.3 = 1.23 s (pulse 81): doubt
+    after that, at a speed more than CHAIN_AGREE off the known way's last answer, no
+    longer shows the fan kept its way, and the chain ends within half that time of its
+    last renewal. The other way at pulse 380 is a reversal at its 17th answer. (Each
+    window in doubt renewing the chain it was judged against held it for 15 s.)"""
+    def doubt(rate):
+        return Decision(Direction.UNKNOWN, None, None, rate, None, 0.3, "direction in doubt",
+                        turning=True, doubtful_room=True)
+    other = [Decision(Direction.REVERSED, None, None, 0.23, None, 0.9, "test",
+                      mirror_checked=True, doubtful_room=True)] * 100
+    same = [_d("same", 0.14)] * 40
+    fired, published, tr = _walk(same + [doubt(0.23)] * 340 + other)
+    assert fired == [("reversed", 380 + 16)] and tr.known == Kind.REVERSED
+    assert published[-1] == "reversed"
+    # doubt at the known way's own speed still carries it (a steady fan on its mirror)
+    fired, published, tr = _walk(same + [doubt(0.15)] * 340 + other)
+    assert fired == [] and tr.known == Kind.SAME and set(published[380:]) == {"unknown"}
+
+
 def test_in_a_doubtful_room_doubt_after_a_slow_fan_does_not_hide_its_reversal():
     """Closed form (the spent held-out scene 1200008 at 750 s): 'same' slowing from
     0.3 Hz at 0.15 Hz/s to 0.084 Hz (pulse 49, 1.44 s), 1.4 s with no answer, 0.4 s in

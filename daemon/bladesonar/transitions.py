@@ -206,6 +206,8 @@ class Transitions:
         self._last_turning_hz = 0.0          # and its |rate| (Hz)
         self._run_from = -math.inf           # the start of its unbroken run of answers (s)
         self._known_seen: tuple[float, float] | None = None   # (t, rate), known direction
+        self._way_answered: tuple[float, float] | None = None   # (t, rate) of its last
+                                             # answer itself (windows in doubt not counted)
         self._known_checked = False          # an answer of the known direction was on a
                                              # line that beat its mirror image
         self._rest_since_known = False       # rest answered after the known direction's
@@ -463,6 +465,16 @@ class Transitions:
         if self._chain is None or not vmax > 0:
             return True
         t, old = self._chain
+        if self._way_answered is not None:
+            # at another speed than the known way's last answer itself, no later than a
+            # fan could have reversed since: windows in doubt renew the chain they are
+            # judged against, and a reversed fan speeding up in a room in doubt for
+            # many seconds (each window a little faster than the last) held its new
+            # direction for 15 s as sudden
+            t_w, old_w = self._way_answered
+            if abs(rate - old_w) > CHAIN_AGREE * old_w \
+                    and float(t_s) >= t_w + _sudden_span(old_w, rate, vmax, 1.0):
+                return False
         return float(t_s) < t + _sudden_span(old, rate, vmax) \
             and abs(rate - old) <= vmax * max(float(t_s) - t, 0.0) + 1e-9
 
@@ -486,10 +498,11 @@ class Transitions:
                     return
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen  # (bounded from rest like it)
+                self._way_answered = self._known_seen
                 self._rest_since_known = False
         elif cand == Kind.STOPPED and self.known in TURNING_KINDS:
             self._see_known(t_s, 0.0)
-            self._chain = None
+            self._chain = self._way_answered = None
             self._rest_since_known = True
 
     def _new_lock_after_zero(self, t_s: float, kind: Kind) -> bool:
@@ -562,6 +575,7 @@ class Transitions:
         self._known_checked = d.mirror_checked
         self._rest_since_known = False
         self._known_seen = (float(t_s), _rate(d)) if cand != Kind.STOPPED else None
+        self._way_answered = self._known_seen
         if corrected:
             return replace(d, reason=f"direction corrected: the {before} answered before "
                                      f"was the mirror image of the blade pattern (it never "
