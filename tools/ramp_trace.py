@@ -5,10 +5,8 @@ truth beside the estimator's insides. A measuring tool, not a test.
   .venv/bin/python tools/ramp_trace.py --seeds 1-12,700002 [--hours 0.4] [--out DIR]
   .venv/bin/python tools/ramp_trace.py --report DIR      (the breakdown of saved traces)
 
-Tuning seeds only (1-200, and the spent held-out ranges 600001-600022, 700001-700021,
-800001-800020, 900001-900020, 1000001-1000020, 1100001-1100020, 1200001-1200020,
-1300001-1300020, 1400001-1400020, 1500001-1500020): seeds from 1600001 on are the next
-held-out range, and the tool refuses them.
+Tuning seeds only (1-200, and the held-out ranges already reported, which are spent):
+seeds from ``NEXT_HELD_OUT`` on are the next held-out range, and the tool refuses them.
 
 A row (``.npz`` per seed, arrays named as below): ``t`` stream time of the state (s),
 ``tt`` the schedule's time, ``true`` the true |rate| (Hz), ``slope`` d|rate|/dt there
