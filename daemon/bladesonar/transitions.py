@@ -296,14 +296,20 @@ class Transitions:
         st = self.settings
         if self._answered:
             self._carry_line = line
-        if self._in_doubt and self.known == Kind.STOPPED and line is None \
-                and d.rate_hz is None and self.known_decision is not None:
-            # a confirmed rest with no line at all: nothing is seen turning (a small
-            # hard-walled reverberant room's resting fan reads as motion on the meter,
-            # and its state flipped between stopped and unknown: spent 2200016)
+        if self._in_doubt and self.known == Kind.STOPPED and self.known_decision is not None:
             k = self.known_decision
-            return replace(k, reason=f"stopped kept: no line since the fan was seen at "
-                                     f"rest; {d.reason}")
+            if line is None and d.rate_hz is None:
+                # a confirmed rest with no line at all: nothing is seen turning (a small
+                # hard-walled reverberant room's resting fan reads as motion on the
+                # meter, and its state flipped between stopped and unknown: spent
+                # 2200016)
+                return replace(k, reason=f"stopped kept: no line since the fan was seen "
+                                         f"at rest; {d.reason}")
+            if d.rate_hz is not None and abs(d.rate_hz) < self.settings.rate_floor_hz:
+                # a line slower than the floor: no direction to claim, nor a start
+                return replace(k, reason=f"stopped kept: turning slower than the floor "
+                                         f"({abs(d.rate_hz):.3f} Hz < "
+                                         f"{self.settings.rate_floor_hz:.3g} Hz); {d.reason}")
         if not self._in_doubt or self._carry_from is None or self.known not in WAY_KINDS \
                 or not st.max_reversal_hz_s > 0:
             return d
