@@ -292,7 +292,8 @@ class Transitions:
         same way (it could turn the other way only through the floor, which ends the
         carry), and the band moves up with it (never down: a slowing fan ends it). A
         confirmed rest is carried too, through windows with no line at all (no track:
-        nothing is seen turning)."""
+        nothing is seen turning) and windows whose line reads the fan slower than the
+        floor (no direction is claimed there, so no start is shown)."""
         st = self.settings
         if self._answered:
             self._carry_line = line
@@ -466,7 +467,9 @@ class Transitions:
         at ``max_reversal_hz_s``), at a speed the fan can have reached the known way. One
         later could be either way (a doubtful room's reversal through zero: 0.16 Hz 1.4 s
         after 0.08 Hz, then an alias line at 0.71 Hz, held the new way's answers for 15 s
-        as sudden)."""
+        as sudden). Nor, at a speed more than ``CHAIN_AGREE`` off the known way's last
+        answer itself, once a fan could have reversed since that answer: each window
+        renews the chain the next is judged against."""
         vmax = self.settings.max_reversal_hz_s
         if self._chain is None or not vmax > 0:
             return True
