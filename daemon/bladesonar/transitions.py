@@ -306,11 +306,11 @@ class Transitions:
                 # 2200016)
                 return replace(k, reason=f"stopped kept: no line since the fan was seen "
                                          f"at rest; {d.reason}")
-            if d.rate_hz is not None and abs(d.rate_hz) < self.settings.rate_floor_hz:
+            if d.rate_hz is not None and abs(d.rate_hz) < st.rate_floor_hz:
                 # a line slower than the floor: no direction to claim, nor a start
                 return replace(k, reason=f"stopped kept: turning slower than the floor "
                                          f"({abs(d.rate_hz):.3f} Hz < "
-                                         f"{self.settings.rate_floor_hz:.3g} Hz); {d.reason}")
+                                         f"{st.rate_floor_hz:.3g} Hz); {d.reason}")
         if not self._in_doubt or self._carry_from is None or self.known not in WAY_KINDS \
                 or not st.max_reversal_hz_s > 0:
             return d
