@@ -28,6 +28,7 @@ Matching is the energy norm, vectorised over pulses and phase bins:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -376,6 +377,31 @@ def twin_bins(features: np.ndarray, phases: np.ndarray, bins: int,
         if other[j] >= max(TWIN_LEAST, TWIN_SHARE * len(came)):
             twins[b] = j
     return twins
+
+
+def clear_share(features: np.ndarray, phases: np.ndarray, bins: int,
+                halves: list[tuple[slice, np.ndarray]] | None = None) -> float:
+    """Share of a reference's pulses that a table folded from the other half of its
+    pulses (:func:`cross_tables`, or ``halves`` if made) matches clearly (quality
+    ``TWIN_CLEAR`` or more) within 1/8 period of their own angle: in [0, 1], NaN for
+    too few pulses.
+
+    Why: the live track lives on such matches. The table's own fit (``quality``, its
+    explained energy) stays near 1 where the fan is seen only in short glints, or where
+    the glints of two stretches of the blade period look alike; there a track is lost
+    every blade period or two. Measured on the reference's own pulses against tables
+    they did not make, the share tells those places apart (docs/dynamics.md, "How much
+    of the fan a place shows")."""
+    f = np.asarray(features, dtype=np.float64)
+    p = np.mod(np.asarray(phases, dtype=np.float64), 1.0)
+    if len(f) // 2 < 2:
+        return math.nan
+    good = 0
+    for test, table in (halves if halves is not None else cross_tables(f, p, bins)):
+        m = match(f[test], table, None, distance_floor(table))
+        off = np.abs((m.phase - p[test] + 0.5) % 1.0 - 0.5)
+        good += int(((m.quality >= TWIN_CLEAR) & (off <= 0.125)).sum())
+    return good / len(f)
 
 
 def twin_phases(phases: np.ndarray, twins: np.ndarray) -> np.ndarray:
