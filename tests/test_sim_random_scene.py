@@ -207,3 +207,33 @@ def test_a_device_moved_as_the_place_warning_asks_keeps_the_room_and_the_day(see
         assert m.describe()["moved_from"] == [[round(c, 2) for c in S0]]
     places = {rs.moved(dr, a).scene.sensor for a in range(3)}
     assert len(places) > 1 or rs.moved(dr, 0) is dr  # each attempt a place of its own
+
+
+@pytest.mark.parametrize("seed", SEEDS[::4])
+def test_a_device_moved_nearer_as_the_match_share_warning_asks_keeps_the_room_and_the_day(
+        seed):
+    # `reference` warns that a place which shows the fan too little to follow should be
+    # left for one nearer the fan, or on another side of it; the sweep's user does so
+    # (tools/days.py): the new place is in reach, 0.5 m or more from the old one, and
+    # nearer the hub (3/4 of the old distance, or within 0.5 m of the nearest the
+    # blades allow; each of these rooms has such places); nothing else changes
+    dr = rs.draw(seed)
+    s = dr.scene
+    V = np.asarray(s.vertices)
+    C, S0 = np.asarray(s.fan_centre), np.asarray(s.sensor)
+    least = s.tip_radius_m + 0.5
+    for attempt in range(3):
+        m = rs.nearer(dr, attempt)
+        assert m == rs.nearer(dr, attempt)           # a seed and attempt name one place
+        if m is dr:
+            continue
+        S = np.asarray(m.scene.sensor)
+        assert m.moved_from == (tuple(float(c) for c in S0),)
+        assert _wall_distance(S, V) >= 0.25 - 1e-9
+        dist = float(np.hypot(*(S - C)))
+        assert least - 1e-9 <= dist <= 4.0 + 1e-9
+        assert float(np.hypot(*(S - S0))) >= 0.5 - 1e-9
+        assert dist <= max(0.75 * float(np.hypot(*(S0 - C))), least + 0.5) + 1e-9
+        assert dataclasses.replace(m.scene, sensor=s.sensor) == s
+        assert dataclasses.replace(m, scene=s, moved_from=()) == dr
+        assert m.schedule(600.0) == dr.schedule(600.0)

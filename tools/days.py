@@ -21,6 +21,7 @@ from bladesonar.errors import EstimationError, InputError
 from bladesonar.io.scene_file import load_scene
 from bladesonar.live import LiveAnalyzer, capture_pulses
 from bladesonar.reference_build import (
+    NEARER_ADVICE,
     PLACE_ADVICE,
     Reference,
     build_reference,
@@ -84,8 +85,9 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2,
     the speed is commensurate with the PRF (warned, or refused), at another fan speed,
     OTHER_SPEED times the last; when the place tells the fan's directions apart too
     weakly (warned: ``PLACE_ADVICE``), with the device moved as the warning asks
-    (``random_scene.moved``; 2-D scenes, and not with ``stay``: the device left where it
-    was drawn)."""
+    (``random_scene.moved``), and when it shows the fan too little to follow (warned:
+    ``NEARER_ADVICE``), nearer the fan (``random_scene.nearer``; both 2-D scenes only,
+    and not with ``stay``: the device left where it was drawn)."""
     cfg0 = config.Config()
     if dims not in (2, 3):
         raise ValueError(f"dims {dims!r}: give 2 (floor-plan scenes) or 3 (box rooms)")
@@ -129,8 +131,12 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2,
         elif any("another fan speed" in w for w in ref.meta["warnings"]):
             rate_hz *= OTHER_SPEED
         elif not stay and isinstance(dr, random_scene.SceneDraw) and any(
-                PLACE_ADVICE in w for w in ref.meta["warnings"]):
-            there = random_scene.moved(dr, len(dr.moved_from))
+                NEARER_ADVICE in w or PLACE_ADVICE in w for w in ref.meta["warnings"]):
+            # the match-share advice first: a place that shows the fan too little to
+            # follow cannot be helped by wall echoes that tell the directions apart
+            there = (random_scene.nearer if any(NEARER_ADVICE in w for w in
+                                                ref.meta["warnings"])
+                     else random_scene.moved)(dr, len(dr.moved_from))
             if there is dr:
                 break
             dr = there

@@ -60,6 +60,8 @@ SNR_DB = (6.0, 30.0)
 DRIFT_PPM = 150.0
 MAX_RANGE_M = 4.0
 TIP_CLEARANCE_M = 0.5
+#: The least a user moves the device when asked for a place nearer the fan (:func:`nearer`).
+MOVE_LEAST_M = 0.5
 COUPLING = (1.0, 8.0)
 
 
@@ -137,6 +139,36 @@ def moved(dr: SceneDraw, attempt: int = 0) -> SceneDraw:
     place = both if both is not None else _point(
         rng, V, 0.25, lambda p: reach(p) and (_clearance(p, V) < wall
                                              or math.dist(p, centre) > axis))
+    if place is None:
+        return dr
+    return dataclasses.replace(
+        dr, scene=dataclasses.replace(s, sensor=(float(place[0]), float(place[1]))),
+        moved_from=(*dr.moved_from, (float(old[0]), float(old[1]))))
+
+
+def nearer(dr: SceneDraw, attempt: int = 0) -> SceneDraw:
+    """The day of ``dr`` with the device put where ``reference`` asks when it sees the fan
+    too little (``match_share`` under ``reference_build.MATCH_SHARE``): nearer the fan, or
+    on another side of it, in the same room, within the reach and clearances of
+    :func:`draw`. Drawn (from the seed and ``attempt``) among the places at most 3/4 of
+    the old distance from the hub (or within 0.5 m of the nearest the blades allow),
+    0.5 m or more from the old place; when none is, among all in reach 0.5 m or more
+    away; when none is in reach at all, ``dr`` as it is."""
+    s = dr.scene
+    V = np.asarray(s.vertices)
+    old = np.asarray(s.sensor)
+    centre = np.asarray(s.fan_centre)
+    least = s.tip_radius_m + TIP_CLEARANCE_M
+    rng = np.random.default_rng([dr.seed, 5, attempt])
+
+    def reach(p: np.ndarray) -> bool:
+        return least <= math.dist(p, centre) <= MAX_RANGE_M \
+            and math.dist(p, old) >= MOVE_LEAST_M
+
+    near = max(0.75 * s.sensor_fan_distance_m, least + 0.5)
+    place = _point(rng, V, 0.25, lambda p: reach(p) and math.dist(p, centre) <= near)
+    if place is None:
+        place = _point(rng, V, 0.25, reach)
     if place is None:
         return dr
     return dataclasses.replace(
