@@ -49,6 +49,11 @@ OTHER_SPEED = 1.04
 HERE = Path(__file__).resolve().parent.parent
 
 
+#: How many times the sweep's user does what a reference advises before living with the
+#: last one: a user moves the device again while `reference` still asks for it.
+ADVICE_TAKEN = 5
+
+
 def day(hours: float, seed: int, block_pulses: int = 1,
         snr_db: tuple[float, float] = (10.0, 12.0), drift_ppm: float = DRIFT_PPM
         ) -> tuple[config.Config, Schedule, Simulator, LiveAnalyzer, float]:
@@ -105,7 +110,7 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2,
 
     rate_hz = dr.ref_rate_hz
     ref: Reference | None = None
-    for last in (False, False, False, True):
+    for last in (False,) * ADVICE_TAKEN + (True,):
         try:
             ref = learn(cfg, rate_hz)
         except EstimationError as e:

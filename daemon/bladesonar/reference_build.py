@@ -49,11 +49,11 @@ REFERENCE_VERSION = 1
 
 class ReferenceMeta(TypedDict, total=False):
     """A reference's metadata (the file's ``meta`` member, JSON): what it was made from
-    and with. :func:`build_reference` writes every key but ``direction_contrast`` and
-    ``match_share`` (only when they could be measured) and ``twin_bins`` (only when some
-    bin has a twin); a file is checked for the keys it must hold when it is read
-    (``io.reference``), and the older files lack some. ``id`` is the daemon's (the
-    file's sha256, 12 digits), never stored."""
+    and with. :func:`build_reference` writes every key but ``direction_contrast``,
+    ``match_share`` and ``astray_share`` (only when they could be measured) and
+    ``twin_bins`` (only when some bin has a twin); a file is checked for the keys it
+    must hold when it is read (``io.reference``), and the older files lack some. ``id``
+    is the daemon's (the file's sha256, 12 digits), never stored."""
 
     format: str
     version: int
@@ -90,7 +90,10 @@ class ReferenceMeta(TypedDict, total=False):
     direction_contrast: float
     match_share: float
     """Share of its pulses matched clearly at their own angle by a table of the other
-    half (:func:`fingerprint.clear_share`); only when measurable (older files: none)."""
+    half (:func:`fingerprint.self_matches`); only when measurable (older files: none)."""
+    astray_share: float
+    """Share of those clear matches that landed at another angle (look-alikes); only
+    when any was clear (older files: none)."""
     twin_bins: list[int]
     """Per table bin, the bin whose pulses its clear matches often came from, or -1
     (:func:`fingerprint.twin_bins`); only when some bin has one (older files: none)."""
@@ -134,7 +137,7 @@ class Reference:
         keys = ("blade_rate_hz", "rate_hz", "rpm", "periods_folded", "quality", "gate_m",
                 "pulses", "dropped_pulses", "direction", "phase_bins", "cycles_per_pulse",
                 "target_range_m", "line_snr", "direction_contrast", "match_share",
-                "features", "device",
+                "astray_share", "features", "device",
                 "warnings")
         out = {k: m[k] for k in keys if k in m}
         if "cycles_per_pulse" in out:
@@ -165,12 +168,17 @@ SPEED_ADVICE = "record the reference at another fan speed, a few percent faster 
 PLACE_ADVICE = ("a place nearer a wall, further off the fan's axis, makes the wall echoes "
                 "that tell the directions apart stronger")
 #: The share of a reference's pulses matched clearly at their own angle
-#: (:func:`fingerprint.clear_share`) under which ``reference`` advises a place nearer the
+#: (:func:`fingerprint.self_matches`) under which ``reference`` advises a place nearer the
 #: fan. Of 219 spent held-out scenes (2000001-3000020, as drawn) the 21 under 0.2 were
 #: right a median 89 % of their days, 11 of them under 90 %, with 78 false and 55 missed
 #: events; the 198 at 0.2 or more a median 97.5 %, 6 under 90 %, 29 false and 27 missed
 #: (docs/dynamics.md, "How much of the fan a place shows").
 MATCH_SHARE = 0.2
+#: The share of the clear matches landing at another angle (look-alike glints) from which
+#: it gives the same advice. Of the same scenes the 11 at 0.3 or more were right 69 % of
+#: their days on average, 6 of them under 90 %; and two devices moved nearer to places at
+#: 0.35 and 0.45 (spent 2700020, 2800018) were right 72-75 % there.
+ASTRAY_SHARE = 0.3
 #: What the match-share warning advises (tools/days.py acts on it as a user would).
 NEARER_ADVICE = ("a place nearer the fan, or on another side of it, shows its blades "
                  "longer and more plainly")
@@ -412,13 +420,19 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     halves = fp.cross_tables(feats, phases, bins)
     twins = fp.twin_bins(feats, phases, bins, halves)
     quality = fp.explained_fraction(feats, table, phases)
-    share = fp.clear_share(feats, phases, bins, halves)
-    if share < MATCH_SHARE:
+    shares = fp.self_matches(feats, phases, bins, halves)
+    if shares.own < MATCH_SHARE:
         warnings.append(
-            f"from here only {100 * share:.0f} % of the fan's echoes match their own blade "
-            f"angle clearly (under {100 * MATCH_SHARE:.0f} %): the blades are seen in short "
-            f"glints, or two stretches of each blade period look alike, so the track "
-            f"will often be lost and the answer unknown; {NEARER_ADVICE}")
+            f"from here only {100 * shares.own:.0f} % of the fan's echoes match their own "
+            f"blade angle clearly (under {100 * MATCH_SHARE:.0f} %): the blades are seen in "
+            f"short glints, or two stretches of each blade period look alike, so the "
+            f"track will often be lost and the answer unknown; {NEARER_ADVICE}")
+    elif shares.astray_of_clear >= ASTRAY_SHARE:
+        warnings.append(
+            f"from here {100 * shares.astray_of_clear:.0f} % of the fan's clear echoes "
+            f"match another blade angle better than their own ({100 * ASTRAY_SHARE:.0f} % "
+            f"or more): two stretches of each blade period look alike, so the track will "
+            f"often be lost or its direction in doubt; {NEARER_ADVICE}")
     window = max(int(round(cfg.daemon.window_s * prf)), 20)
     contrast = direction_contrast(feats, phases, bins, window, halves)
     if contrast is not None and contrast < aliasing.MIRROR_DOUBT_Z:
@@ -457,8 +471,10 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     }
     if contrast is not None:
         meta["direction_contrast"] = round(contrast, 2)
-    if math.isfinite(share):
-        meta["match_share"] = round(share, 3)
+    if math.isfinite(shares.own):
+        meta["match_share"] = round(shares.own, 3)
+    if math.isfinite(shares.astray_of_clear):
+        meta["astray_share"] = round(shares.astray_of_clear, 3)
     if (twins >= 0).any():
         meta["twin_bins"] = [int(t) for t in twins]
     return Reference(table=table, mean_pulse=mean_pulse, meta=meta)

@@ -379,29 +379,47 @@ def twin_bins(features: np.ndarray, phases: np.ndarray, bins: int,
     return twins
 
 
-def clear_share(features: np.ndarray, phases: np.ndarray, bins: int,
-                halves: list[tuple[slice, np.ndarray]] | None = None) -> float:
-    """Share of a reference's pulses that a table folded from the other half of its
-    pulses (:func:`cross_tables`, or ``halves`` if made) matches clearly (quality
-    ``TWIN_CLEAR`` or more) within 1/8 period of their own angle: in [0, 1], NaN for
-    too few pulses.
+@dataclass(frozen=True)
+class SelfMatches:
+    """How a reference's own pulses match a table of the other half (:func:`self_matches`):
+    the shares of its pulses matched clearly within 1/8 period of their own angle
+    (``own``) and further (``astray``); NaN for too few pulses."""
 
-    Why: the live track lives on such matches. The table's own fit (``quality``, its
-    explained energy) stays near 1 where the fan is seen only in short glints, or where
-    the glints of two stretches of the blade period look alike; there a track is lost
-    every blade period or two. Measured on the reference's own pulses against tables
-    they did not make, the share tells those places apart (docs/dynamics.md, "How much
-    of the fan a place shows")."""
+    own: float
+    astray: float
+
+    @property
+    def astray_of_clear(self) -> float:
+        """Share of the clear matches that land at another angle (NaN: none clear)."""
+        clear = self.own + self.astray
+        return self.astray / clear if clear > 0 else math.nan
+
+
+def self_matches(features: np.ndarray, phases: np.ndarray, bins: int,
+                 halves: list[tuple[slice, np.ndarray]] | None = None) -> SelfMatches:
+    """Each half of a reference's pulses matched against a table folded from the other
+    half (:func:`cross_tables`, or ``halves`` if made): the shares of its pulses matched
+    clearly (quality ``TWIN_CLEAR`` or more) at their own angle and elsewhere.
+
+    Why: the live track lives on clear matches at the fan's own angle, and clear ones
+    elsewhere (look-alike glints, often mirror images) pull it off its line or onto its
+    mirror. The table's own fit (``quality``, its explained energy) stays near 1 where
+    the fan is seen only in short glints, or where two stretches of the blade period
+    look alike; there a track is lost every blade period or two. Measured on pulses
+    the table did not see, the shares tell those places apart (docs/dynamics.md, "How
+    much of the fan a place shows")."""
     f = np.asarray(features, dtype=np.float64)
     p = np.mod(np.asarray(phases, dtype=np.float64), 1.0)
     if len(f) // 2 < 2:
-        return math.nan
-    good = 0
+        return SelfMatches(math.nan, math.nan)
+    own = astray = 0
     for test, table in (halves if halves is not None else cross_tables(f, p, bins)):
         m = match(f[test], table, None, distance_floor(table))
-        off = np.abs((m.phase - p[test] + 0.5) % 1.0 - 0.5)
-        good += int(((m.quality >= TWIN_CLEAR) & (off <= 0.125)).sum())
-    return good / len(f)
+        near = np.abs((m.phase - p[test] + 0.5) % 1.0 - 0.5) <= 0.125
+        clear = m.quality >= TWIN_CLEAR
+        own += int((clear & near).sum())
+        astray += int((clear & ~near).sum())
+    return SelfMatches(own / len(f), astray / len(f))
 
 
 def twin_phases(phases: np.ndarray, twins: np.ndarray) -> np.ndarray:

@@ -299,7 +299,8 @@ def _check_meta(meta: Any) -> None:  # noqa: C901  a flat list, one check per me
     for key in ("rate_hz", "blade_rate_hz", "prf_hz"):
         _num(meta, key, lo=0.0, lo_open=True, optional=key != "rate_hz")
     for key in ("rpm", "periods_folded", "quality", "line_snr", "explained_lines",
-                "min_bin_weight", "direction_contrast", "match_share"):
+                "min_bin_weight", "direction_contrast", "match_share",
+                "astray_share"):
         _num(meta, key, optional=True)
     for key in ("pulses", "used_pulses", "dropped_pulses"):
         _num(meta, key, lo=0, integer=True, optional=True)
