@@ -179,7 +179,8 @@ MATCH_SHARE = 0.2
 #: their days on average, 6 of them under 90 %; and two devices moved nearer to places at
 #: 0.35 and 0.45 (spent 2700020, 2800018) were right 72-75 % there.
 ASTRAY_SHARE = 0.3
-#: What the match-share warning advises (tools/days.py acts on it as a user would).
+#: What the match-share and astray-share warnings advise (tools/days.py acts on it as a
+#: user would).
 NEARER_ADVICE = ("a place nearer the fan, or on another side of it, shows its blades "
                  "longer and more plainly")
 

@@ -148,12 +148,13 @@ def moved(dr: SceneDraw, attempt: int = 0) -> SceneDraw:
 
 def nearer(dr: SceneDraw, attempt: int = 0) -> SceneDraw:
     """The day of ``dr`` with the device put where ``reference`` asks when it sees the fan
-    too little (``match_share`` under ``reference_build.MATCH_SHARE``): nearer the fan, or
-    on another side of it, in the same room, within the reach and clearances of
-    :func:`draw`. Drawn (from the seed and ``attempt``) among the places at most 3/4 of
-    the old distance from the hub (or within 0.5 m of the nearest the blades allow),
-    0.5 m or more from the old place; when none is, among all in reach 0.5 m or more
-    away; when none is in reach at all, ``dr`` as it is."""
+    too little or in look-alikes (``match_share`` under ``reference_build.MATCH_SHARE``,
+    or ``astray_share`` from ``ASTRAY_SHARE``): nearer the fan, or on another side of it,
+    in the same room, within the reach and clearances of :func:`draw`. Drawn (from the
+    seed and ``attempt``) among the places at most 3/4 of the old distance from the hub
+    (or within 0.5 m of the nearest the blades allow), 0.5 m or more from the old place;
+    when none is, among all in reach 0.5 m or more away; when none is in reach at all,
+    ``dr`` as it is."""
     s = dr.scene
     V = np.asarray(s.vertices)
     old = np.asarray(s.sensor)
