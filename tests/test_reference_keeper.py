@@ -207,3 +207,26 @@ def test_a_reference_the_daemon_learned_at_a_poor_speed_is_learned_again_at_anot
                        (ours, False)):
         assert set(run(meta, [0.236] * (3 * n), auto=auto, window=0.236)) == {None}, \
             (meta, auto)
+
+
+def test_a_learned_references_advice_is_logged_as_a_warning(
+        tmp_path: Path, caplog: Any) -> None:
+    """A headless user reads the journal (``journalctl -p warning``): each warning of a
+    reference the daemon learned (another place, another speed) is logged at WARNING,
+    besides the event's ``warnings``; a reference with none logs none."""
+    cfg = config.from_mapping({"daemon": {"state_dir": str(tmp_path / "state")}})
+    host = Host(cfg)
+
+    def factory(c: config.Config, ref: Any) -> Any:
+        return types.SimpleNamespace()
+
+    k = ReferenceKeeper(host, reference_loader=load, analyzer_factory=factory,
+                        notifier=NullNotifier(), clock=lambda: 0.0)  # type: ignore[arg-type]
+    advice = "from here only 11 % of the fan's echoes match ...; a place nearer the fan"
+    with caplog.at_level("WARNING", logger="bladesonar"):
+        k.learned(JobResult("learn", value={"id": "ref-B", "warnings": [advice]}), "auto")
+        k.learned(JobResult("learn", value={"id": "ref-C", "warnings": []}), "auto")
+    got = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert got == [f"reference ref-B: {advice}"], got
+    kind, details = host.publisher.sent[0]
+    assert kind == "reference_learned" and details["warnings"] == [advice]

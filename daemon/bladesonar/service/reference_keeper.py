@@ -362,6 +362,10 @@ class ReferenceKeeper:
                      info.get("direction_source"), info.get("direction_carried"),
                      info.get("airflow"), info.get("airflow_confidence"),
                      info.get("airflow_t"), info.get("airflow_reason"))
+            # what the reference advises (another place, another speed) reaches a
+            # headless user through the journal as well as the event
+            for w in info.get("warnings") or []:
+                log.warning("reference %s: %s", info.get("id"), w)
             # what decided the direction, for whoever wonders why it is what it is
             publisher.publish_event(
                 EventKind.REFERENCE_LEARNED, reference=info.get("id"), rate_hz=info.get("rate_hz"),
