@@ -419,9 +419,10 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
             f"{SPEED_ADVICE}")
     table, weight = fp.build_table(feats, phases, bins)
     halves = fp.cross_tables(feats, phases, bins)
-    twins = fp.twin_bins(feats, phases, bins, halves)
+    crossed = fp.cross_matches(feats, phases, bins, halves)
+    twins = fp.twin_bins(feats, phases, bins, crossed)
     quality = fp.explained_fraction(feats, table, phases)
-    shares = fp.self_matches(feats, phases, bins, halves)
+    shares = fp.self_matches(feats, phases, bins, crossed)
     if shares.own < MATCH_SHARE:
         warnings.append(
             f"from here only {100 * shares.own:.0f} % of the fan's echoes match their own "

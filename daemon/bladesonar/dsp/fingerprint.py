@@ -333,8 +333,21 @@ def cross_tables(features: np.ndarray, phases: np.ndarray, bins: int
                                 (slice(0, half), slice(half, n)))]
 
 
+def cross_matches(features: np.ndarray, phases: np.ndarray, bins: int,
+                  halves: list[tuple[slice, np.ndarray]] | None = None
+                  ) -> list[tuple[slice, Matches]]:
+    """Each half of a reference's pulses matched against a table folded from the other
+    half (:func:`cross_tables`, or ``halves`` if made), with the table's
+    :func:`distance_floor`: (the half's rows, their matches), twice. What
+    :func:`twin_bins` and :func:`self_matches` read."""
+    f = np.asarray(features, dtype=np.float64)
+    return [(test, match(f[test], table, None, distance_floor(table)))
+            for test, table in (halves if halves is not None
+                                else cross_tables(f, np.mod(phases, 1.0), bins))]
+
+
 def twin_bins(features: np.ndarray, phases: np.ndarray, bins: int,
-              halves: list[tuple[slice, np.ndarray]] | None = None) -> np.ndarray:
+              crossed: list[tuple[slice, Matches]] | None = None) -> np.ndarray:
     """For each bin of the table, the other angle whose pulses often match it clearly
     (its *twin*), or -1: shape (bins,), learned from a reference's own pulses.
 
@@ -346,7 +359,7 @@ def twin_bins(features: np.ndarray, phases: np.ndarray, bins: int,
     tracker that counts those as outliers gives its line up every second. Which bins
     are confused with which is a property of the room and fan, so it is measured where
     the truth is known: each half of the reference's pulses is matched against a table
-    folded from the other half (:func:`cross_tables`, or ``halves`` if made), and a bin
+    folded from the other half (:func:`cross_matches`, or ``crossed`` if made), and a bin
     whose clear matches (quality ``TWIN_CLEAR`` or more) came from one other angle, more
     than 1/8 period away, at least ``TWIN_SHARE`` of the time (and ``TWIN_LEAST`` times)
     has that angle as its twin. A match at a bin with a twin could be either angle;
@@ -360,8 +373,7 @@ def twin_bins(features: np.ndarray, phases: np.ndarray, bins: int,
     if len(f) // 2 < 2 or bins < 8:
         return twins
     true_bin, got_bin = [], []
-    for test, table in (halves if halves is not None else cross_tables(f, p, bins)):
-        m = match(f[test], table, None, distance_floor(table))
+    for test, m in (crossed if crossed is not None else cross_matches(f, p, bins)):
         clear = m.quality >= TWIN_CLEAR
         true_bin.append(nearest_bin(p[test][clear], bins))
         got_bin.append(nearest_bin(m.phase[clear], bins))
@@ -396,9 +408,9 @@ class SelfMatches:
 
 
 def self_matches(features: np.ndarray, phases: np.ndarray, bins: int,
-                 halves: list[tuple[slice, np.ndarray]] | None = None) -> SelfMatches:
+                 crossed: list[tuple[slice, Matches]] | None = None) -> SelfMatches:
     """Each half of a reference's pulses matched against a table folded from the other
-    half (:func:`cross_tables`, or ``halves`` if made): the shares of its pulses matched
+    half (:func:`cross_matches`, or ``crossed`` if made): the shares of its pulses matched
     clearly (quality ``TWIN_CLEAR`` or more) at their own angle and elsewhere.
 
     Why: the live track lives on clear matches at the fan's own angle, and clear ones
@@ -413,8 +425,7 @@ def self_matches(features: np.ndarray, phases: np.ndarray, bins: int,
     if len(f) // 2 < 2:
         return SelfMatches(math.nan, math.nan)
     own = astray = 0
-    for test, table in (halves if halves is not None else cross_tables(f, p, bins)):
-        m = match(f[test], table, None, distance_floor(table))
+    for test, m in (crossed if crossed is not None else cross_matches(f, p, bins)):
         near = np.abs((m.phase - p[test] + 0.5) % 1.0 - 0.5) <= 0.125
         clear = m.quality >= TWIN_CLEAR
         own += int((clear & near).sum())
