@@ -135,13 +135,13 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2,
             cfg = _half_volume(cfg)
         elif any("another fan speed" in w for w in ref.meta["warnings"]):
             rate_hz *= OTHER_SPEED
-        elif not stay and isinstance(dr, random_scene.SceneDraw) and any(
-                NEARER_ADVICE in w or PLACE_ADVICE in w for w in ref.meta["warnings"]):
+        elif not stay and isinstance(dr, random_scene.SceneDraw) and (
+                (nearer := any(NEARER_ADVICE in w for w in ref.meta["warnings"]))
+                or any(PLACE_ADVICE in w for w in ref.meta["warnings"])):
             # the match-share advice first: a place that shows the fan too little to
             # follow cannot be helped by wall echoes that tell the directions apart
-            there = (random_scene.nearer if any(NEARER_ADVICE in w for w in
-                                                ref.meta["warnings"])
-                     else random_scene.moved)(dr, len(dr.moved_from))
+            there = (random_scene.nearer if nearer else random_scene.moved)(
+                dr, len(dr.moved_from))
             if there is dr:
                 break
             dr = there

@@ -139,11 +139,7 @@ def moved(dr: SceneDraw, attempt: int = 0) -> SceneDraw:
     place = both if both is not None else _point(
         rng, V, 0.25, lambda p: reach(p) and (_clearance(p, V) < wall
                                              or math.dist(p, centre) > axis))
-    if place is None:
-        return dr
-    return dataclasses.replace(
-        dr, scene=dataclasses.replace(s, sensor=(float(place[0]), float(place[1]))),
-        moved_from=(*dr.moved_from, (float(old[0]), float(old[1]))))
+    return _placed(dr, place)
 
 
 def nearer(dr: SceneDraw, attempt: int = 0) -> SceneDraw:
@@ -170,10 +166,17 @@ def nearer(dr: SceneDraw, attempt: int = 0) -> SceneDraw:
     place = _point(rng, V, 0.25, lambda p: reach(p) and math.dist(p, centre) <= near)
     if place is None:
         place = _point(rng, V, 0.25, reach)
+    return _placed(dr, place)
+
+
+def _placed(dr: SceneDraw, place: np.ndarray | None) -> SceneDraw:
+    """``dr`` with the device at ``place`` and its old place kept in ``moved_from``;
+    ``dr`` as it is when there is no place."""
     if place is None:
         return dr
+    old = dr.scene.sensor
     return dataclasses.replace(
-        dr, scene=dataclasses.replace(s, sensor=(float(place[0]), float(place[1]))),
+        dr, scene=dataclasses.replace(dr.scene, sensor=(float(place[0]), float(place[1]))),
         moved_from=(*dr.moved_from, (float(old[0]), float(old[1]))))
 
 
