@@ -254,11 +254,17 @@ def _gate_for_reference(cfg: Config, full: AlignedPulses, prf: float) -> tuple[G
         raise InputError(f"range gate: {exc}") from exc
 
 
-#: Least range the gate holds past the fan's direct echo, m: the wall bounces that tell
-#: the direction come 0.3-2 m later, and beyond one PRI they fold into the next pulse's
-#: window, ahead of the gate (a fan 4.6 m away, gate 0.64 m: false reversals every few
-#: seconds in three simulated trials).
-MIN_MULTIPATH_M = 1.2
+#: Least range the gate holds past the fan's direct echo, m. The wall bounces that tell
+#: the direction come up to about 3 m after it in the 3-7 m rooms the device is made for
+#: (a bounce off a far wall adds about the wall's distance from the fan), and beyond one
+#: PRI they fold into the next pulse's window, ahead of the gate. With 1.2 m here (the
+#: tuning room's bounces come 0.3-2 m after the direct echo) a fan 3-3.9 m away in a
+#: random room read the other way from its reference was often `unknown`, and its
+#: reversals came late (docs/dynamics.md, "Wall bounces past the gate").
+MIN_MULTIPATH_M = 2.5
+#: Range past the fan's direct echo that the PRI :func:`unfolding_pri` names keeps, m
+#: (more than ``MIN_MULTIPATH_M``, so that the gate it gives is not warned about again).
+UNFOLD_M = 3.0
 
 
 def folds_multipath(gate: Gate, target: float | None) -> bool:
@@ -267,9 +273,9 @@ def folds_multipath(gate: Gate, target: float | None) -> bool:
 
 
 def unfolding_pri(cfg: Config, target: float) -> int:
-    """The PRI (samples) that keeps echoes to 2 m past a fan at ``target`` m."""
+    """The PRI (samples) that keeps echoes to ``UNFOLD_M`` past a fan at ``target`` m."""
     c, fs = cfg.scene.speed_of_sound, cfg.audio.sample_rate
-    return int(math.ceil(2.0 * (target + 2.0) / c * fs))
+    return int(math.ceil(2.0 * (target + UNFOLD_M) / c * fs))
 
 
 def _fold_warning(cfg: Config, gate: Gate, target: float | None) -> list[str]:
@@ -279,10 +285,10 @@ def _fold_warning(cfg: Config, gate: Gate, target: float | None) -> list[str]:
     fs, K = cfg.audio.sample_rate, cfg.scene.blades
     pri = unfolding_pri(cfg, target)
     return [f"the fan's echo comes from {target:.2f} m and the range gate ends at "
-            f"{gate.stop_m:.2f} m (one PRI): the wall bounces that tell the direction fold "
+            f"{gate.stop_m:.2f} m (one PRI): wall bounces that tell the direction fold "
             f"into the next pulse, so directions may be unknown or wrong; set "
-            f"waveform.pri_samples to {pri} or more (echoes to {target + 2.0:.1f} m; the "
-            f"fastest fan followed becomes {fs / pri / (2 * K):.2f} Hz), or move the "
+            f"waveform.pri_samples to {pri} or more (echoes to {target + UNFOLD_M:.1f} m; "
+            f"the fastest fan followed becomes {fs / pri / (2 * K):.2f} Hz), or move the "
             "device nearer the fan"]
 
 
