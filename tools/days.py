@@ -50,7 +50,11 @@ HERE = Path(__file__).resolve().parent.parent
 
 
 #: How many times the sweep's user does what a reference advises before living with the
-#: last one: a user moves the device again while `reference` still asks for it.
+#: last one: a user moves the device again while `reference` still asks for it, and
+#: changes a setting it names (the PRI, the volume, the fan's speed) again while it asks.
+#: Moves and settings count apart: a setting changed first (since 2026-11-30 the PRI for
+#: a fan 2.5 m away or more) used to leave one move fewer, and a room that needed five
+#: moves was left at a place its reference still advised against (spent 2900004).
 ADVICE_TAKEN = 5
 
 
@@ -92,7 +96,8 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2,
     weakly (warned: ``PLACE_ADVICE``), with the device moved as the warning asks
     (``random_scene.moved``), and when it shows the fan too little to follow (warned:
     ``NEARER_ADVICE``), nearer the fan (``random_scene.nearer``; both 2-D scenes only,
-    and not with ``stay``: the device left where it was drawn)."""
+    and not with ``stay``: the device left where it was drawn). Settings and moves are
+    each taken up to ``ADVICE_TAKEN`` times."""
     cfg0 = config.Config()
     if dims not in (2, 3):
         raise ValueError(f"dims {dims!r}: give 2 (floor-plan scenes) or 3 (box rooms)")
@@ -110,43 +115,46 @@ def random_day(hours: float, seed: int, block_pulses: int = 1, dims: int = 2,
 
     rate_hz = dr.ref_rate_hz
     ref: Reference | None = None
-    for last in (False,) * ADVICE_TAKEN + (True,):
+    changes = moves = 0             # settings changed and places moved to on advice
+    while True:
         try:
             ref = learn(cfg, rate_hz)
         except EstimationError as e:
-            if last or "different fan speed" not in str(e):
+            if changes == ADVICE_TAKEN or "different fan speed" not in str(e):
                 raise
-            ref, rate_hz = None, rate_hz * OTHER_SPEED
+            ref, rate_hz, changes = None, rate_hz * OTHER_SPEED, changes + 1
             continue
         except InputError as e:
             # refused for echoes that clip (too few pulses left): as the warning, half
             # the playback volume
-            if last or "lower the playback volume" not in str(e):
+            if changes == ADVICE_TAKEN or "lower the playback volume" not in str(e):
                 raise
-            ref = None
-            cfg = _half_volume(cfg)
+            ref, cfg, changes = None, _half_volume(cfg), changes + 1
             continue
-        if last:
-            break               # (the configuration the reference was learned with)
-        if folds_multipath(ref.gate, ref.meta["target_range_m"]):
-            cfg = config.replace(cfg, waveform={
-                "pri_samples": unfolding_pri(cfg, ref.meta["target_range_m"])})
-        elif any("lower the playback volume" in w for w in ref.meta["warnings"]):
-            cfg = _half_volume(cfg)
-        elif any("another fan speed" in w for w in ref.meta["warnings"]):
-            rate_hz *= OTHER_SPEED
-        elif not stay and isinstance(dr, random_scene.SceneDraw) and (
-                (nearer := any(NEARER_ADVICE in w for w in ref.meta["warnings"]))
-                or any(PLACE_ADVICE in w for w in ref.meta["warnings"])):
+        warnings = ref.meta["warnings"]
+        if changes < ADVICE_TAKEN:
+            if folds_multipath(ref.gate, ref.meta["target_range_m"]):
+                cfg = config.replace(cfg, waveform={
+                    "pri_samples": unfolding_pri(cfg, ref.meta["target_range_m"])})
+                changes += 1
+                continue
+            if any("lower the playback volume" in w for w in warnings):
+                cfg, changes = _half_volume(cfg), changes + 1
+                continue
+            if any("another fan speed" in w for w in warnings):
+                rate_hz, changes = rate_hz * OTHER_SPEED, changes + 1
+                continue
+        if moves < ADVICE_TAKEN and not stay and isinstance(dr, random_scene.SceneDraw) and (
+                (nearer := any(NEARER_ADVICE in w for w in warnings))
+                or any(PLACE_ADVICE in w for w in warnings)):
             # the match-share advice first: a place that shows the fan too little to
             # follow cannot be helped by wall echoes that tell the directions apart
             there = (random_scene.nearer if nearer else random_scene.moved)(
                 dr, len(dr.moved_from))
-            if there is dr:
-                break
-            dr = there
-        else:
-            break
+            if there is not dr:
+                dr, moves = there, moves + 1
+                continue
+        break               # (the configuration the reference was learned with)
     assert ref is not None
     sim = Simulator(dr.scene, cfg, sch, snr_db=dr.snr_db, seed=seed + 1,
                     drift_ppm=dr.drift_ppm, nuisances=dr.nuisances, include_paths=False)
