@@ -348,3 +348,29 @@ def test_a_windows_accepted_share_is_read_against_the_devices_settled_tracks():
     for a in shares(0.3, 200):
         poor.note(float(a), settled=True)
     assert poor.typical == 0.6
+
+
+def test_a_quiet_short_meter_outweighs_a_track_at_a_rate_it_sees_recur():
+    """A clear track at 1/9 blade period per pulse while the short meter reads rest. A
+    fan turning at 1/9 shows the meter its pattern again at lag 9, within the meter's 16
+    lags, and reads far above the threshold (measured here on synthetic pulses), so the
+    track follows a pattern that does not move: stopped. Spent held-out 3500007 was
+    published 0.62 Hz `reversed` for 3.3 s after its fan came to rest that way. A meter
+    whose lags stop at 8 never sees that pattern come back, and the track keeps its
+    answer (a fan at a rate the meter cannot see recur may read quiet while turning)."""
+    rng = np.random.default_rng(3)
+    n = 51                                   # the short meter's 1.5 s at 34 Hz
+    rest = fan_pulse(0.3, L)[None, :] + 0.002 * rng.standard_normal((n, L))
+    quiet, _ = motion_statistic(envelope_features(rest, rest.mean(axis=0)), max_lag=16)
+    turning = np.array([fan_pulse(p, L) for p in np.mod(np.arange(n) / 9.0, 1.0)])
+    turning = turning + 0.002 * rng.standard_normal((n, L))
+    loud, _ = motion_statistic(envelope_features(turning, turning.mean(axis=0)), max_lag=16)
+    thr = DecideSettings().motion_threshold
+    assert quiet < thr and loud > 2 * thr
+    d = _common(rate=1 / 9, ref_cycles_per_pulse=0.1, still=quiet, still_lags=16)
+    assert d.direction == "stopped", d
+    d = _common(rate=1 / 9, ref_cycles_per_pulse=0.1, still=quiet, still_lags=8)
+    assert d.direction == "same", d
+    # and a slow track, whose pattern comes back at no lag after a whole turn, wins too
+    d = _common(rate=0.03, ref_cycles_per_pulse=0.025, still=quiet, still_lags=16)
+    assert d.direction == "same", d

@@ -1058,7 +1058,7 @@ class PulseAnalyzer:
         args = dict(still=still, accel=accel * prf,
                     changing_odds=self.tracker.follower_weight,
                     at_rest=self.static.frozen, seen_still=self._seen_still(),
-                    rate=rate, rate_std=sd, locked=locked,
+                    still_lags=self.still.max_lag, rate=rate, rate_std=sd, locked=locked,
                     accepted=accepted,
                     quality=float(qual.mean()) if len(qual) else 0.0,
                     motion=motion, scene=scene,

@@ -509,6 +509,25 @@ class DecideSettings:
 SEEN_STILL_FACTOR = 1.3
 
 
+#: A pattern turning at a rate that comes back within this share of a blade period at
+#: one of the short meter's lags (having turned at least once) is seen by the meter: at
+#: that lag its pulses differ by noise alone, and the window's spread holds the turning.
+RECUR_SHARE = 0.02
+
+
+def recurs(rate: float, lags: int, share: float = RECUR_SHARE) -> bool:
+    """Whether a pattern turning ``rate`` blade periods per pulse comes back within
+    ``share`` of a period at some lag 1..``lags`` after turning a whole period or more."""
+    if not math.isfinite(rate):
+        return False
+    for m in range(1, max(int(lags), 0) + 1):
+        x = rate * m
+        n = round(x)
+        if n != 0 and abs(x - n) <= share:
+            return True
+    return False
+
+
 def _normal_cdf(x: float) -> float:
     return 0.5 * (1.0 + math.erf(x / math.sqrt(2.0)))
 
@@ -519,6 +538,7 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
            alias_note: str = "", direction_note: str = "", awaiting_check: bool = False,
            still: float = math.nan, accel: float = 0.0,
            changing_odds: float = 0.0, at_rest: bool = False, seen_still: bool = False,
+           still_lags: int = 0,
            settings: DecideSettings = DecideSettings()) -> Decision:
     """Direction and rate of one window.
 
@@ -576,6 +596,9 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         ``_seen_still``): a short meter under ``SEEN_STILL_FACTOR`` times the threshold
         then reads as rest (high SNR with clock drift leaves a resting fan's meter about
         the threshold), and the answer says it was seen still.
+    still_lags : int
+        The short meter's largest lag: a quiet short meter outweighs a clear track whose
+        rate recurs at one of its lags (:func:`recurs`); 0: never.
 
     Notes
     -----
@@ -613,9 +636,14 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
     # its echoes for the meter to see.
     clear = turning and conf >= s.min_confidence and rate_hz >= 2.0 * s.rate_floor_hz \
         and abs(rate) >= 4.0 * rate_std
-    moving = clear and not at_rest
     m, thr = (still, still_thr) if math.isfinite(still) else (motion, s.motion_threshold)
     quiet = math.isfinite(m) and m < thr
+    # ...but not a track at a rate the short meter sees recur (``recurs``): a fan turning
+    # there would have read far above its threshold, so the track is an alias of a
+    # pattern that does not move (a fan at rest whose pulses all fit a line at 1/9
+    # blade period per pulse was published 0.62 Hz 'reversed' for 3.3 s: spent 3500007)
+    seen_by_meter = quiet and math.isfinite(still) and recurs(rate, still_lags)
+    moving = clear and not at_rest and not seen_by_meter
     if quiet and not moving:
         c = min(max((thr - m) / (thr - 1.0), 0.0), 1.0)
         return Decision(Direction.STOPPED, None, 0.0, 0.0, 0.0, c,
