@@ -11,6 +11,16 @@ from bladesonar.sim import random_scene
 from bladesonar.sim.render import simulate
 
 
+def learned(dr: random_scene.SceneDraw, cfg: config.Config, seed: int) -> Reference:
+    """Scene ``seed``'s reference with ``cfg``, as the daemon learns it: 20 s at the
+    reference speed, at the scene's SNR, drift and nuisances."""
+    x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
+                    schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60", seed=seed,
+                    snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
+                    include_paths=False)
+    return build_reference(x, cfg, dr.ref_direction)
+
+
 def learned_and_rendered(seed: int, schedule: str, seconds: float
                          ) -> tuple[random_scene.SceneDraw, config.Config, Reference,
                                     np.ndarray]:
@@ -19,11 +29,7 @@ def learned_and_rendered(seed: int, schedule: str, seconds: float
     with another noise draw (seed + 7)."""
     dr = random_scene.draw(seed)
     cfg = config.replace(config.Config(), scene={"blades": dr.blades})
-    x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
-                    schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60", seed=seed,
-                    snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
-                    include_paths=False)
-    ref = build_reference(x, cfg, dr.ref_direction)
+    ref = learned(dr, cfg, seed)
     y, _ = simulate(dr.scene, cfg, seconds, schedule=schedule, seed=seed + 7,
                     snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
                     include_paths=False)

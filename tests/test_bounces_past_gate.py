@@ -14,23 +14,16 @@ import pytest
 
 from bladesonar import config
 from bladesonar.live import LiveAnalyzer
-from bladesonar.reference_build import build_reference, folds_multipath
+from bladesonar.reference_build import folds_multipath
 from bladesonar.sim import random_scene
-from bladesonar.sim.render import Simulator, simulate
+from bladesonar.sim.render import Simulator
 from bladesonar.sim.schedule import parse
 from live_feed import pulses
+from scene_runs import learned
 
 pytestmark = pytest.mark.slow   # two 20 s references and a 30 s probe, about 30 s of CPU
 
 SEED = 3100004
-
-
-def _reference(dr, cfg):
-    x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
-                    schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60", seed=SEED,
-                    snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
-                    include_paths=False)
-    return build_reference(x, cfg, dr.ref_direction)
 
 
 def test_the_pri_a_far_fans_reference_names_keeps_its_reversals_readable():
@@ -38,10 +31,10 @@ def test_the_pri_a_far_fans_reference_names_keeps_its_reversals_readable():
     dr = random_scene.draw(SEED, c0.prf_hz)
     assert dr.nuisances.rt60_s > 0.6 and dr.blades == 6
     cfg = config.replace(c0, scene={"blades": dr.blades})
-    ref = _reference(dr, cfg)
+    ref = learned(dr, cfg, SEED)
     target = ref.meta["target_range_m"]
     # the fan's direct echo and where the default gate ends, from the geometry
-    assert 3.5 < target < 3.9 and 4.9 < ref.gate.stop_m < 5.05
+    assert target is not None and 3.5 < target < 3.9 and 4.9 < ref.gate.stop_m < 5.05
     warn = [w for w in ref.meta["warnings"] if "waveform.pri_samples to" in w]
     assert len(warn) == 1
     pri = int(warn[0].split("waveform.pri_samples to ")[1].split()[0])
@@ -49,7 +42,7 @@ def test_the_pri_a_far_fans_reference_names_keeps_its_reversals_readable():
     c, fs = cfg.scene.speed_of_sound, cfg.audio.sample_rate
     assert pri * c / fs / 2.0 - target >= 2.5
     cfg2 = config.replace(cfg, waveform={"pri_samples": pri})
-    ref2 = _reference(dr, cfg2)
+    ref2 = learned(dr, cfg2, SEED)
     assert not folds_multipath(ref2.gate, ref2.meta["target_range_m"])
     other = "cw" if dr.ref_direction == "ccw" else "ccw"
     sim = Simulator(dr.scene, cfg2, parse(f"{other}:{dr.ref_rate_hz:.4f}:60"),

@@ -21,9 +21,9 @@ import pytest
 
 from bladesonar import config
 from bladesonar.errors import EstimationError
-from bladesonar.reference_build import build_reference, folds_multipath, unfolding_pri
+from bladesonar.reference_build import folds_multipath, unfolding_pri
 from bladesonar.sim import random_scene
-from bladesonar.sim.render import simulate
+from scene_runs import learned
 
 pytestmark = pytest.mark.slow   # five 20 s renders, about 15 s of CPU
 
@@ -35,18 +35,11 @@ def _learn(seed: int):
     dr = random_scene.draw(seed, c0.prf_hz)
     cfg = config.replace(c0, scene={"blades": dr.blades})
 
-    def build(cfg):
-        x, _ = simulate(dr.scene, cfg, random_scene.REFERENCE_S,
-                        schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60", seed=seed,
-                        snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
-                        include_paths=False)
-        return build_reference(x, cfg, dr.ref_direction)
-
-    ref = build(cfg)
-    if folds_multipath(ref.gate, ref.meta["target_range_m"]):
-        cfg = config.replace(cfg, waveform={
-            "pri_samples": unfolding_pri(cfg, ref.meta["target_range_m"])})
-        ref = build(cfg)
+    ref = learned(dr, cfg, seed)
+    target = ref.meta["target_range_m"]
+    if target is not None and folds_multipath(ref.gate, target):
+        cfg = config.replace(cfg, waveform={"pri_samples": unfolding_pri(cfg, target)})
+        ref = learned(dr, cfg, seed)
     return ref, dr, cfg
 
 
