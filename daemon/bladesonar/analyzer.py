@@ -60,6 +60,7 @@ from .tuning import (
     SLOW_FACTOR,
     SNAPSHOT_EVERY,
     SNAPSHOTS,
+    START_STILL,
     STILL_BAND,
     STILL_WINDOW_S,
     TREND_SHARE,
@@ -518,6 +519,7 @@ class PulseAnalyzer:
     motion_fed: float = float("nan")
     decided: Decision | None = None               # the last decision (before the machine)
     _quiet: bool = False                          # the last decision's short meter was quiet
+    _rest_moved: bool = False                     # the fan moved since the rest's hold began
     bursts: dev.BurstGate = field(default_factory=dev.BurstGate)   # pulses skipped: .bursts
     #: the locked track's unwrapped phase over the last window, (pulse, cycles), and the
     #: track it belongs to (a new lock or a move to another line starts it afresh)
@@ -675,6 +677,7 @@ class PulseAnalyzer:
                 # the same pulses
                 q = at[i + 1]
                 self.motion_fed = float(pm.motion[q])
+                self._let_go_at_start(float(ps.motion[q]))
                 d = self.decided = self.decision((self.motion_fed, float(ps.motion[q])))
                 state, fired = self.transitions.step(t_s, k, d, self._since)
                 state, changed = self._feed_back(k, t_s, d, state)
@@ -804,6 +807,27 @@ class PulseAnalyzer:
         # a drop-out at the head's end marks the rest's first pulse
         self._carry_restart = {j for j in restart if j > k}
         return self.process(_rows_of(block, ~head), rows=rows)
+
+    def _let_go_at_start(self, still: float) -> None:
+        """While a rest's hold is on and `stopped` is published, the first short-meter
+        reading of motion (over ``START_STILL`` times the rest threshold) gives up the
+        track that stood through the rest: a new lock is fitted from the recent matches
+        (not at a reversal's zero, whose track goes on through it).
+
+        Why: at rest a still pattern fits an angle and its mirror alike, and the track
+        that stood there took the fan's first moves from whichever it sat on. In spent
+        held-out 3700012 (3 blades 3.2 m away) the first clear matches of two starts lay
+        on the mirror branch, the standing track followed them the wrong way, and
+        `started` came `reversed` within a second, although the matches on the true
+        branch were as many and as clear; a lock fitted on the recent matches weighs
+        them all."""
+        if not self.static.frozen:
+            self._rest_moved = False
+        elif not self._rest_moved and self.state is not None \
+                and self.state.direction == Direction.STOPPED \
+                and still > START_STILL * self._decide_settings.still_threshold:
+            self._rest_moved = True
+            self.tracker.let_go()
 
     def _restart_track(self) -> None:
         """After a drop-out of unknown length: the track goes on (most drop-outs lose less

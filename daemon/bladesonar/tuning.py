@@ -42,6 +42,11 @@ NOISE_MARGIN = 0.03
 REST_SHIFT_MAX = 0.15
 REST_KEEP = 256
 REST_LEAST = 30
+#: A short-meter reading this many times the rest threshold, while a rest's hold is on,
+#: is the fan moving again (analyzer._let_go_at_start): a start read 3.6-6.7 in its first
+#: decisions in the room that needed it (threshold 1.15), a resting fan stays under the
+#: threshold but for its first window (REST_SHIFT_MAX lets the threshold rise 0.15).
+START_STILL = 2.0
 
 #: The accepted share read against this device's settled tracks (dsp/decide.AcceptFloor):
 #: settled means older than the window and this many standard deviations clear of zero

@@ -840,6 +840,11 @@ class Tracker:
         self.rechecks += 1
         return True
 
+    def let_go(self) -> None:
+        """Give up the track: the next match starts a lock fitted on the recent ones (as
+        after ``reacquire_after`` outliers)."""
+        self._x = self._fx = self._fP = None
+
     def forget_matches(self) -> None:
         """Drop the matches kept for a (re)lock and a re-check: after a gap of unknown
         length they would join both sides of a hidden jump in one line."""
