@@ -1,5 +1,5 @@
-"""A random scene's reference learned as the daemon learns it, and a schedule of that
-scene rendered for analyze (tests of traced held-out scenes)."""
+"""A random scene's reference learned as the daemon learns it, a live capture of it, and a
+schedule of that scene rendered for analyze (tests of traced held-out scenes)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import numpy as np
 from bladesonar import config
 from bladesonar.reference_build import Reference, build_reference
 from bladesonar.sim import random_scene
-from bladesonar.sim.render import simulate
+from bladesonar.sim.render import Simulator, simulate
+from bladesonar.sim.schedule import Schedule, parse
 
 
 def learned(dr: random_scene.SceneDraw, cfg: config.Config, seed: int) -> Reference:
@@ -19,6 +20,15 @@ def learned(dr: random_scene.SceneDraw, cfg: config.Config, seed: int) -> Refere
                     snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
                     include_paths=False)
     return build_reference(x, cfg, dr.ref_direction)
+
+
+def streamed(dr: random_scene.SceneDraw | random_scene.DayDraw3D, cfg: config.Config,
+             schedule: str | Schedule, seed: int) -> Simulator:
+    """A live capture of scene ``dr`` turning by ``schedule``, at the scene's SNR, drift
+    and nuisances, noise drawn from ``seed``."""
+    sch = parse(schedule) if isinstance(schedule, str) else schedule
+    return Simulator(dr.scene, cfg, sch, snr_db=dr.snr_db, seed=seed,
+                     drift_ppm=dr.drift_ppm, nuisances=dr.nuisances, include_paths=False)
 
 
 def learned_and_rendered(seed: int, schedule: str, seconds: float

@@ -16,10 +16,8 @@ from bladesonar import config
 from bladesonar.live import LiveAnalyzer
 from bladesonar.reference_build import folds_multipath
 from bladesonar.sim import random_scene
-from bladesonar.sim.render import Simulator
-from bladesonar.sim.schedule import parse
 from live_feed import pulses
-from scene_runs import learned
+from scene_runs import learned, streamed
 
 pytestmark = pytest.mark.slow   # two 20 s references and a 30 s probe, about 30 s of CPU
 
@@ -45,9 +43,7 @@ def test_the_pri_a_far_fans_reference_names_keeps_its_reversals_readable():
     ref2 = learned(dr, cfg2, SEED)
     assert not folds_multipath(ref2.gate, ref2.meta["target_range_m"])
     other = "cw" if dr.ref_direction == "ccw" else "ccw"
-    sim = Simulator(dr.scene, cfg2, parse(f"{other}:{dr.ref_rate_hz:.4f}:60"),
-                    snr_db=dr.snr_db, seed=SEED + 1, drift_ppm=dr.drift_ppm,
-                    nuisances=dr.nuisances, include_paths=False)
+    sim = streamed(dr, cfg2, f"{other}:{dr.ref_rate_hz:.4f}:60", SEED + 1)
     live = LiveAnalyzer(cfg2, ref2)
     states = [est.direction.value for pos, est, _ in pulses(sim, live, 30.0)
               if est is not None and pos / fs > 5.0]

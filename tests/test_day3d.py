@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 from bladesonar.sim import random_scene
-from bladesonar.sim.render import Simulator
 from bladesonar.sim.scene3d import Scene3D
 from bladesonar.sim.schedule import parse
+from scene_runs import streamed
 
 pytestmark = pytest.mark.slow
 
@@ -40,8 +40,7 @@ def test_a_3d_day_stops_and_starts_and_the_pipeline_finds_both():
     assert isinstance(dr, random_scene.DayDraw3D)
     d, r = dr.ref_direction, f"{dr.ref_rate_hz:.3f}"
     sch = parse(f"{d}:{r}:25,stop:0:15~5,{d}:{r}:25~4")
-    sim = Simulator(dr.scene, cfg, sch, snr_db=dr.snr_db, seed=SEED + 1,
-                    drift_ppm=dr.drift_ppm, nuisances=dr.nuisances, include_paths=False)
+    sim = streamed(dr, cfg, sch, SEED + 1)
     score, _ = days.run_day(cfg, sch, sim, live, 65.0, drift_ppm=dr.drift_ppm,
                             ref_sign=1 if d == "ccw" else -1)
     s = score.summary()

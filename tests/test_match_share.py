@@ -21,12 +21,10 @@ from bladesonar.reference_build import (
     ASTRAY_SHARE,
     MATCH_SHARE,
     NEARER_ADVICE,
-    build_reference,
 )
 from bladesonar.sim import random_scene
-from bladesonar.sim.render import Simulator, simulate
-from bladesonar.sim.schedule import parse
 from live_feed import pulses
+from scene_runs import learned, streamed
 
 L = 200
 RATE = 0.0437                      # blade phase per pulse (period 22.9 pulses)
@@ -88,11 +86,8 @@ SEED = 3000016      # spent held-out: 5 blades 3.71 m away, right 42 % of its da
 def _steady_minute(dr) -> tuple[dict, list[str]]:
     cfg = config.replace(config.Config(), scene={"blades": dr.blades})
     sched = f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60"
-    x, _ = simulate(dr.scene, cfg, 20.0, schedule=sched, seed=SEED, snr_db=dr.snr_db,
-                    drift_ppm=dr.drift_ppm, nuisances=dr.nuisances, include_paths=False)
-    ref = build_reference(x, cfg, dr.ref_direction)
-    sim = Simulator(dr.scene, cfg, parse(sched), snr_db=dr.snr_db, seed=SEED + 1,
-                    drift_ppm=dr.drift_ppm, nuisances=dr.nuisances, include_paths=False)
+    ref = learned(dr, cfg, SEED)
+    sim = streamed(dr, cfg, sched, SEED + 1)
     states = [est.direction.value for pos, est, _ in pulses(sim, LiveAnalyzer(cfg, ref), 40.0)
               if est is not None and pos / cfg.audio.sample_rate > 5.0]
     return dict(ref.meta), states
@@ -127,10 +122,7 @@ def test_a_place_whose_clear_echoes_often_match_another_angle_is_advised_too():
     dr = random_scene.draw(2700020)
     dr = dataclasses.replace(dr, scene=dataclasses.replace(dr.scene, sensor=(1.34, 2.74)))
     cfg = config.replace(config.Config(), scene={"blades": dr.blades})
-    x, _ = simulate(dr.scene, cfg, 20.0, schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60",
-                    seed=2700020, snr_db=dr.snr_db, drift_ppm=dr.drift_ppm,
-                    nuisances=dr.nuisances, include_paths=False)
-    meta = build_reference(x, cfg, dr.ref_direction).meta
+    meta = learned(dr, cfg, 2700020).meta
     assert meta["match_share"] >= MATCH_SHARE
     assert meta["astray_share"] >= ASTRAY_SHARE
     assert any("match another blade angle" in w and NEARER_ADVICE in w

@@ -1,5 +1,5 @@
 """A loud fan near the device comes to rest (truth: the simulator's schedule). Spent
-held-out room 3700008 (docs/dynamics.md, "A loud fan's rest at one scale"): a 5-blade
+held-out room 3700008 (docs/dynamics.md, "The room while the fan rests"): a 5-blade
 fan 1.7 m from the device at 29.5 dB, under 5 ppm of clock drift. Its echo moves the
 pulses' gain by more than 1.5 dB, so the reference asks for each pulse to be scaled to
 the static estimate (``normalise``). That scale followed the estimate: after a slow
@@ -18,10 +18,8 @@ from bladesonar import config
 from bladesonar.dsp import device as dev
 from bladesonar.live import LiveAnalyzer
 from bladesonar.sim import random_scene
-from bladesonar.sim.render import Simulator
-from bladesonar.sim.schedule import parse
 from live_feed import pulses
-from scene_runs import learned
+from scene_runs import learned, streamed
 
 pytestmark = pytest.mark.slow   # a 20 s reference and an 84 s run, about 20 s of CPU
 
@@ -41,11 +39,8 @@ def test_a_loud_fans_rest_is_called_once_its_echoes_have_died_away(ramp_s):
     assert device is not None and device["gain_wander_db"] > dev.NORMALISE_ABOVE_DB
     rest_at = LEAD_S + TURN_S + ramp_s
     # a slow spin-down (0.04-0.05 Hz/s), slow long enough for the estimate to be held
-    sim = Simulator(dr.scene, cfg,
-                    parse(f"stop:0:{LEAD_S},{dr.ref_direction}:{dr.ref_rate_hz:.4f}:"
-                          f"{TURN_S}~3,stop:0:14~{ramp_s}"),
-                    snr_db=dr.snr_db, seed=SEED + 1, drift_ppm=dr.drift_ppm,
-                    nuisances=dr.nuisances, include_paths=False)
+    sim = streamed(dr, cfg, f"stop:0:{LEAD_S},{dr.ref_direction}:{dr.ref_rate_hz:.4f}:"
+                   f"{TURN_S}~3,stop:0:14~{ramp_s}", SEED + 1)
     live = LiveAnalyzer(cfg, ref)
     fs = cfg.audio.sample_rate
     stops = [pos / fs for pos, _, events in pulses(sim, live, rest_at + 14.0)

@@ -18,12 +18,11 @@ import pytest
 
 from bladesonar import config
 from bladesonar.live import LiveAnalyzer
-from bladesonar.reference_build import build_reference
 from bladesonar.sim import random_scene
-from bladesonar.sim.render import Simulator, simulate
 from bladesonar.sim.schedule import parse
 from bladesonar.sim.score import true_time
 from live_feed import pulses
+from scene_runs import learned, streamed
 
 pytestmark = pytest.mark.slow
 
@@ -37,16 +36,11 @@ HOLD_S = 10.0        # the other way at TO_HZ after the ramp's end
 def test_a_slow_reversal_is_confirmed_in_time():
     dr = random_scene.draw(SEED)
     cfg = config.replace(config.Config(), scene={"blades": dr.blades})
-    x, _ = simulate(dr.scene, cfg, 20.0,
-                    schedule=f"{dr.ref_direction}:{dr.ref_rate_hz:.4f}:60", seed=SEED,
-                    snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
-                    include_paths=False)
-    ref = build_reference(x, cfg, dr.ref_direction)
+    ref = learned(dr, cfg, SEED)
     other = "cw" if dr.ref_direction == "ccw" else "ccw"
     sch = parse(f"{dr.ref_direction}:{FROM_HZ}:{STEADY_S},"
                 f"{other}:{TO_HZ}:{RAMP_S + HOLD_S}~{RAMP_S}")
-    sim = Simulator(dr.scene, cfg, sch, snr_db=dr.snr_db, seed=NOISE_SEED,
-                    drift_ppm=dr.drift_ppm, nuisances=dr.nuisances, include_paths=False)
+    sim = streamed(dr, cfg, sch, NOISE_SEED)
     live = LiveAnalyzer(cfg, ref)
     events = []
     for _, _, fired in pulses(sim, live, STEADY_S + RAMP_S + HOLD_S):

@@ -15,10 +15,8 @@ import pytest
 from bladesonar import config
 from bladesonar.live import LiveAnalyzer
 from bladesonar.sim import random_scene
-from bladesonar.sim.render import Simulator
-from bladesonar.sim.schedule import parse
 from live_feed import pulses
-from scene_runs import learned
+from scene_runs import learned, streamed
 
 pytestmark = pytest.mark.slow   # a 20 s reference and a 210 s run, about 25 s of CPU
 
@@ -43,8 +41,7 @@ def test_each_start_from_rest_is_answered_the_way_the_fan_turns():
         segs.append(f"{way}:{rng.uniform(0.25, 0.6):.3f}:15~5")
         starts.append((t, "same" if way == dr.ref_direction else "reversed"))
         t += 15.0
-    sim = Simulator(dr.scene, cfg, parse(",".join(segs)), snr_db=dr.snr_db, seed=SEED + 11,
-                    drift_ppm=dr.drift_ppm, nuisances=dr.nuisances, include_paths=False)
+    sim = streamed(dr, cfg, ",".join(segs), SEED + 11)
     live = LiveAnalyzer(cfg, ref)
     fs = cfg.audio.sample_rate
     started = [(pos / fs, e.direction.value) for pos, _, events in pulses(sim, live, t)

@@ -948,7 +948,7 @@ class Tracker:
                 self.clear_credit = max(self.clear_credit - 1, 0)
                 self.clear_run += 1
             if self.outlier_run >= st.reacquire_after or self.clear_run >= st.reacquire_after:
-                self._x = self._fx = self._fP = None
+                self.let_go()
                 self._init()
             return True
         if self._fx is not None and f is not None:
