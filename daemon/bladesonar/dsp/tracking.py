@@ -65,6 +65,16 @@ COAST_SHARE = 0.6
 #: one away. A wrong first lock (a fast fan against a slow reference) rejects the clear
 #: matches, never earns the credit, and its weak outliers give it up.
 COAST_STREAK = 3
+#: The follower's weight (Tracker.follower_weight) from which a match with a twin (a
+#: look-alike angle: fingerprint.twin_bins) is read as the one the follower expects
+#: rather than the constant-rate track. On a ramp the track runs ahead of the fan
+#: through each blind stretch, and the twin nearer its phase is the wrong one: in spent
+#: held-out 3900017 (4 blades, weight 0.96-1.00 down a 0.09 Hz/s reversal) each such
+#: match pulled the follower forward, 0.44 Hz read 1.14 Hz within 1.5 s and the
+#: reversal came 6.6 s late. Not at even odds: on a steady fan in a glinting room
+#: (spent 3800009, 6 blades at 0.35 Hz) a spurious ramp took the weight to 0.51, and
+#: twins read its way carried it on to a line the other way (a false reversal pair).
+TWIN_FOLLOWER = 0.9
 #: The most credit a track holds. A cap rather than a reset on a rejected match: a slow
 #: fan's blind half often begins with two clear matches at the mirror angle, which a
 #: right track rejects and must still coast through. A cap rather than a long memory of
@@ -869,7 +879,8 @@ class Tracker:
         """Fold in pulse ``k`` matched at phase ``z`` (cycles) with quality in [0, 1].
         ``twin``: the angle whose pulses also match there (:func:`fingerprint.twin_bins`;
         NaN: none): a turning track that has shown its line (:meth:`_shown_line`, as
-        for a coast) measures whichever of the two its line expects. Not otherwise: a
+        for a coast) measures whichever of the two its line expects (the follower's
+        from ``TWIN_FOLLOWER``: on a ramp the constant-rate line runs ahead). Not otherwise: a
         twin is a second chance for any line, and in spent held-out scene 1500001 a
         fresh wrong one (half the rate, the other way, in a reversal's spin-up) was kept
         by them for half a minute, and a line standing at rest for 110 s after the fan
@@ -892,9 +903,13 @@ class Tracker:
                 self.coasted += 1
                 self._keep_follower_on_side()
             else:
-                if twin == twin and self._shown_line() \
-                        and abs(wrap(twin - self._x[0])) < abs(wrap(z - self._x[0])):
-                    z = twin            # (NaN: no twin)
+                if twin == twin and self._shown_line():
+                    # (NaN: no twin) whichever of the two the line expects: the
+                    # follower's once the matches clearly favour it (TWIN_FOLLOWER)
+                    at = self._fx[0] if self._fx is not None \
+                        and self.follower_weight >= TWIN_FOLLOWER else self._x[0]
+                    if abs(wrap(twin - at)) < abs(wrap(z - at)):
+                        z = twin
                 outlier = self._measure(int(k), z, quality)
         if self._x is not None:
             w = max(float(quality), 0.0)
