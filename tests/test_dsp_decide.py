@@ -13,6 +13,7 @@ from bladesonar.dsp.decide import (
     MotionMeter,
     NoiseFloor,
     RestFloor,
+    TurningFloor,
     decide,
     motion_statistic,
     noise_threshold,
@@ -262,6 +263,40 @@ def test_the_rest_threshold_rises_to_what_the_device_reads_at_rest():
     for r in _resting_readings(60, 3, amp=4.0):
         loud.note(float(r), at_rest=True)
     assert loud.threshold <= base + 0.15
+
+
+def test_the_rest_threshold_comes_down_to_what_a_far_fan_reads_turning():
+    """Spent held-out 4000008 (3 blades 3.54 m away): the fan at rest read about 1.01
+    (noise's median in its gate, whose noise alone stays under 1.07), the fan turning
+    steadily 1.08-1.43, half of it under the configured floor of 1.15. Calibrated on the
+    readings taken while a turning state is published, the threshold comes down between
+    the two: the resting readings stay under it, the turning ones mostly over it. Not
+    for a fan whose turning readings stand above the threshold, nor below what this
+    device reads at rest, nor from readings taken while nothing turns."""
+    rng = np.random.default_rng(5)
+    rest = 1.01 + 0.012 * rng.standard_normal(400)
+    turning = rng.uniform(1.08, 1.43, 400)
+    assert np.mean(turning < 1.15) > 0.15                   # the floor calls them rest
+    far = TurningFloor(noise_high=1.07, noise_median=1.01, quantile=0.1, keep=256, least=30)
+    for r in turning[:200]:
+        far.note(float(r), turning=True)
+    thr = far.cap(1.15, rest_median=float(np.median(rest[:200])))
+    assert 1.07 <= thr < 1.15
+    assert np.mean(rest[200:] < thr) >= 0.98
+    assert np.mean(turning[200:] < thr) <= 0.15
+    # a fan the meter sees clearly: its readings stand above, the threshold stays
+    near = TurningFloor(noise_high=1.07, noise_median=1.01, quantile=0.1, keep=256, least=30)
+    for r in rng.uniform(1.6, 3.0, 200):
+        near.note(float(r), turning=True)
+    assert near.cap(1.15, rest_median=1.01) == 1.15
+    # a device that reads high at rest (RestFloor raised its threshold): never under its
+    # rest readings by less than noise's spread
+    assert far.cap(1.21, rest_median=1.15) >= 1.15 + (1.07 - 1.01)
+    # readings while nothing turns are not the fan's
+    idle = TurningFloor(noise_high=1.07, noise_median=1.01, quantile=0.1, keep=256, least=30)
+    for r in turning[:200]:
+        idle.note(float(r), turning=False)
+    assert idle.cap(1.15, rest_median=None) == 1.15
 
 
 def _diff_energies(rng, pulses: int, n: int, sigma: float, change: float = 0.0):

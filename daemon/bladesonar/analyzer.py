@@ -32,6 +32,7 @@ from .dsp.decide import (
     MotionMeter,
     NoiseFloor,
     RestFloor,
+    TurningFloor,
     decide,
     noise_threshold,
 )
@@ -64,6 +65,7 @@ from .tuning import (
     STILL_BAND,
     STILL_WINDOW_S,
     TREND_SHARE,
+    TURNING_QUANTILE,
     UNTRUSTED_FACTOR,
     decide_settings,
     tracker_settings,
@@ -584,9 +586,13 @@ class PulseAnalyzer:
         self._decide_settings = replace(self._decide_settings, still_threshold=max(
             floor, noise_threshold(*shape) + NOISE_MARGIN))
         # and above what this device reads at rest, where that is more than noise
-        self.rest_floor = RestFloor(self._decide_settings.still_threshold,
-                                    noise_threshold(*shape, quantile=0.5),
+        noise_median = noise_threshold(*shape, quantile=0.5)
+        self.rest_floor = RestFloor(self._decide_settings.still_threshold, noise_median,
                                     REST_SHIFT_MAX, REST_KEEP, REST_LEAST)
+        # and under it, as far as this fan turning reads it (a far fan barely moves it)
+        self.turning_floor = TurningFloor(noise_threshold(*shape) + NOISE_MARGIN,
+                                          noise_median, TURNING_QUANTILE, REST_KEEP,
+                                          REST_LEAST)
         self.accept_floor = AcceptFloor(ACCEPT_LEAST_SHARE, ACCEPT_KEEP, ACCEPT_LEAST)
         self._table_norms = (self.ref.table ** 2).sum(axis=1)
         self._table_floor = fp.distance_floor(self.ref.table)
@@ -1103,6 +1109,11 @@ class PulseAnalyzer:
         seen_hz = abs(rate) / ref_cpp * float(self.ref.meta["rate_hz"]) \
             if locked and math.isfinite(rate) and ref_cpp > 0 else 0.0
         thr = self.rest_floor.note(still, seen_hz < self.cfg.tracking.rate_floor_hz)
+        shown = self.state
+        self.turning_floor.note(still, shown is not None and shown.direction in WAYS
+                                and (shown.rate_hz or 0.0) >= self.rest_hold.turning_hz
+                                and not (self.static.frozen or self.static.held))
+        thr = self.turning_floor.cap(thr, self.rest_floor.rest_median)
         if thr != self._decide_settings.still_threshold:
             self._decide_settings = replace(self._decide_settings, still_threshold=thr)
         # the short meter sees no change beyond noise: the fan may be coming to rest, and

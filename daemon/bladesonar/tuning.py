@@ -42,6 +42,11 @@ NOISE_MARGIN = 0.03
 REST_SHIFT_MAX = 0.15
 REST_KEEP = 256
 REST_LEAST = 30
+#: The share of the short meter's readings while the fan turns that the rest threshold
+#: may come down to (decide.TurningFloor), kept over as many decisions as the rest's
+#: (REST_KEEP, REST_LEAST): a stop needs the meter quiet over its confirmation, and a
+#: turning fan that reads under the threshold one decision in ten seldom does.
+TURNING_QUANTILE = 0.1
 #: A short-meter reading this many times the rest threshold, while a rest's hold is on,
 #: is the fan moving again (analyzer._let_go_at_start): a start read 3.6-6.7 in its first
 #: decisions in the room that needed it (threshold 1.15), a resting fan stays under the
