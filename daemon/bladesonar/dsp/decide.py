@@ -400,6 +400,8 @@ class RestFloor:
         self.least = int(least)
         self._seen = _Recent(keep)
         self.threshold = self.base
+        #: the median of the readings at rest, once there are ``least`` of them
+        self.rest_median: float | None = None
 
     def note(self, still: float, at_rest: bool) -> float:
         """Add one decision's short-meter reading (``at_rest``: the tracker sees no
@@ -412,9 +414,6 @@ class RestFloor:
                 shift = min(max(med - self.noise_median, 0.0), self.max_shift)
                 self.threshold = self.base + shift
         return self.threshold
-
-    #: the median of the readings at rest, once there are ``least`` of them
-    rest_median: float | None = None
 
 
 class TurningFloor:

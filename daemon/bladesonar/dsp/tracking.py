@@ -880,11 +880,11 @@ class Tracker:
         ``twin``: the angle whose pulses also match there (:func:`fingerprint.twin_bins`;
         NaN: none): a turning track that has shown its line (:meth:`_shown_line`, as
         for a coast) measures whichever of the two its line expects (the follower's
-        from ``TWIN_FOLLOWER``: on a ramp the constant-rate line runs ahead). Not otherwise: a
-        twin is a second chance for any line, and in spent held-out scene 1500001 a
-        fresh wrong one (half the rate, the other way, in a reversal's spin-up) was kept
-        by them for half a minute, and a line standing at rest for 110 s after the fan
-        started."""
+        from ``TWIN_FOLLOWER`` on: on a ramp the constant-rate line runs ahead). Not
+        otherwise: a twin is a second chance for any line, and in spent held-out scene
+        1500001 a fresh wrong one (half the rate, the other way, in a reversal's
+        spin-up) was kept by them for half a minute, and a line standing at rest for
+        110 s after the fan started."""
         st = self.settings
         self._recent.append((int(k), float(z), max(float(quality), 0.0)))
         outlier = False
