@@ -583,16 +583,16 @@ class PulseAnalyzer:
         floor = self._decide_settings.motion_threshold
         shape = (self.ref.mean_pulse.shape[0], self.still.window, self.still.max_lag,
                  STILL_BAND, self.cfg.analysis.envelope_smooth)
-        self._decide_settings = replace(self._decide_settings, still_threshold=max(
-            floor, noise_threshold(*shape) + NOISE_MARGIN))
+        noise_high = noise_threshold(*shape) + NOISE_MARGIN
+        self._decide_settings = replace(self._decide_settings,
+                                        still_threshold=max(floor, noise_high))
         # and above what this device reads at rest, where that is more than noise
         noise_median = noise_threshold(*shape, quantile=0.5)
         self.rest_floor = RestFloor(self._decide_settings.still_threshold, noise_median,
                                     REST_SHIFT_MAX, REST_KEEP, REST_LEAST)
         # and under it, as far as this fan turning reads it (a far fan barely moves it)
-        self.turning_floor = TurningFloor(noise_threshold(*shape) + NOISE_MARGIN,
-                                          noise_median, TURNING_QUANTILE, REST_KEEP,
-                                          REST_LEAST)
+        self.turning_floor = TurningFloor(noise_high, noise_median, TURNING_QUANTILE,
+                                          REST_KEEP, REST_LEAST)
         self.accept_floor = AcceptFloor(ACCEPT_LEAST_SHARE, ACCEPT_KEEP, ACCEPT_LEAST)
         self._table_norms = (self.ref.table ** 2).sum(axis=1)
         self._table_floor = fp.distance_floor(self.ref.table)
