@@ -590,28 +590,55 @@ def test_a_followed_run_after_rest_is_bounded_by_how_fast_a_fan_speeds_up():
     # = 6.1 s, when they have ended
     ({j: ("reversed", 0.33) for j in range(9, 16)}, None),
     # a true reversal through zero at 5.0 s, answered the other way from 0.1 Hz at
-    # 5.7 s on at 0.15 Hz/s: possible from 5.0 + 0.1 / 0.3 = 5.33 s, so it fires at its
-    # count, the fifth answer (6.1 s)
-    ({j: ("reversed", 0.1 + 0.15 * 0.1 * (j - 12)) for j in range(12, 40)}, 6.1),
+    # 5.7 s on at 0.15 Hz/s: possible from 5.0 + 0.1 / 0.3 = 5.33 s, but the fan was
+    # read slower than the floor until 5.3 s (the windows within 0.05 / 0.15 s of zero),
+    # and a fan that came to rest there would read as motion on the short meter until
+    # 5.3 + meter_lag_s (1.3 s) = 6.6 s: it fires then, its count long met
+    ({j: ("reversed", 0.1 + 0.15 * 0.1 * (j - 12)) for j in range(12, 40)}, 6.6),
 ])
 def test_a_reversal_is_timed_from_the_zero_of_the_slowing_line(other, first):
     """Closed form, 10 answers/s, 0.3 Hz/s: 'same' slowing from 0.4 Hz at 1 s at 0.1 Hz/s
     (its line reaches zero at 5.0 s), answered down to 0.06 Hz at 4.4 s, then unknown
-    from 4.5 s but for the answers ``other`` (index from 4.5 s). A fan cannot be turning
-    the other way at some rate sooner than that rate's ramp from the zero of its line (a
-    simulated day: new locks 0.4 s after the line's zero claimed 0.32-0.35 Hz for 0.8 s,
-    and the wait, timed from the last answer of the old way, 1.2 s before, let them
-    through as a 'reversed')."""
+    from 4.5 s (read slower than the floor up to 5.3 s, with no rate after) but for the
+    answers ``other`` (index from 4.5 s). A fan cannot be turning the other way at some
+    rate sooner than that rate's ramp from the zero of its line (a simulated day: new
+    locks 0.4 s after the line's zero claimed 0.32-0.35 Hz for 0.8 s, and the wait,
+    timed from the last answer of the old way, 1.2 s before, let them through as a
+    'reversed')."""
     tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=10.0), 10.0)
     for i in range(10):
         tr.step(i * 0.1, i, _d("same", 0.4))
     k = _slow_down(tr, 1.0, 4.4, 0.4, -0.1, pulse=10)
     fired = []
     for j in range(40):
-        d, r = other.get(j, ("unknown", 0.0))
         t = round(4.5 + 0.1 * j, 3)
-        fired += [(e.kind, t) for e in tr.step(t, k + j, _d(d, r))[1]]
+        d = _d(*other[j]) if j in other else _d("unknown", 0.0) if t <= 5.3 else _none()
+        fired += [(e.kind, t) for e in tr.step(t, k + j, d)[1]]
     assert fired == ([] if first is None else [("reversed", first)])
+
+
+def _none():
+    """A window with no track: no direction, no rate."""
+    return Decision(Direction.UNKNOWN, None, None, None, None, 0.0, "no lock")
+
+
+def test_a_new_direction_waits_for_the_meter_to_see_a_fan_read_near_zero_come_to_rest():
+    """Closed form, 10 answers/s: 'same' at 0.2 Hz, then slowing to 0.05 Hz at 5.0 s
+    (at 0.05 Hz/s, the line of answers from 0.15 Hz up put its zero near 8 s), read
+    slower than the floor until 6.5 s, then the other way at 0.13 Hz for 0.8 s (the
+    tracks a spin-down's end leaves, spent held-out 4100011, twice: a fan 3.5 m away at
+    30 dB creeping to rest reads as motion on the short meter for about 1.1 s after it
+    stops), then at rest. The other way is not taken before 6.5 + meter_lag_s (1.3 s)
+    = 7.8 s, by which time rest is answered: only the stop fires. (Before, its count met
+    at 7.1 s, a false 'reversed' came 0.8 s before the stop.)"""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=0.75), 10.0)
+    seq = [_d("same", 0.2)] * 20 + [_d("same", 0.2 - 0.05 * 0.1 * j) for j in range(31)] \
+        + [_d("unknown", 0.04 - 0.0027 * j) for j in range(15)] \
+        + [_d("reversed", 0.13)] * 8 + [_d("stopped")] * 60
+    fired = []
+    for i, d in enumerate(seq):
+        fired += [(e.kind, round(e.t_s, 3)) for e in tr.step(round(i * 0.1, 3), i, d)[1]]
+    assert [k for k, _ in fired] == ["stopped"]
 
 
 def _slow_down(tr, t0, t1, r0, slope, pulse=0):
@@ -1448,10 +1475,12 @@ def test_a_new_lock_of_the_old_way_after_zero_does_not_make_a_reversal_sudden(wa
     on a line not checked against its mirror. The fan was seen at zero: a run of the old
     way that has not lasted ``followed_s`` (1 s) is a new lock on a fan that may be
     reversing, so the other way is judged against 0.054 Hz 1.2 s before (through zero a
-    fan needs (0.054 + 0.105) / 0.3 = 0.53 s): a reversal at its 17th answer. Judged
-    against the lock, it came at once and was held as the mirror image until its line
-    was checked (4 s in the scene). A lock of the old way followed for 1.2 s does vouch
-    for it: then the other way at once is sudden, and held."""
+    fan needs (0.054 + 0.105) / 0.3 = 0.53 s), and it waits for the short meter to have
+    seen a fan that crept to rest after the last slow window (``meter_lag_s``, 1.3 s =
+    44.2 answers after it, 21 before the other way's first): a reversal at its 25th
+    answer. Judged against the lock, it came at once and was held as the mirror image
+    until its line was checked (4 s in the scene). A lock of the old way followed for
+    1.2 s does vouch for it: then the other way at once is sudden, and held."""
     if way_down == "steep, no line":
         down = [_d("same", 0.168)] * 60 + [_d("same", 0.11 - 0.056 * i / 16)
                                            for i in range(17)]
@@ -1464,7 +1493,7 @@ def test_a_new_lock_of_the_old_way_after_zero_does_not_make_a_reversal_sudden(wa
     other = [_d("reversed", 0.105 + 0.085 * i / 34, checked=False) for i in range(100)]
     start = len(down) + 20 + 10 + 10
     fired, published, tr = _walk(down + slow + lost + [_d("same", 0.14)] * 10 + other)
-    assert fired == [("reversed", start + 16)] and tr.known == Kind.REVERSED
+    assert fired == [("reversed", start + 24)] and tr.known == Kind.REVERSED
     fired, published, _ = _walk(down + slow + lost + [_d("same", 0.14)] * 40 + other)
     assert fired == [] and set(published[start + 30:]) == {"unknown"}
 

@@ -19,7 +19,8 @@ rule applies. :meth:`Transitions.step` is the rules in their order:
    than a fan reverses at all, after a direction never shown to beat its mirror);
 4. ``REVERSAL_UNDER_WAY``: a stop waits while a fan seen slowing could be reversing
    through zero;
-5. ``TOO_SOON``: a reversal waits until a fan could have made it;
+5. ``TOO_SOON``: a reversal waits until a fan could have made it, and until the short
+   meter could have seen a fan read near zero come to rest;
 6. ``CONFIRMING``: a new kind needs ``confirm_s`` (a stop ``stop_confirm_s``) of answers.
 
 A decision in doubt only about the direction at the speed the known direction was last
@@ -66,7 +67,8 @@ class TransitionSettings:
     #: reversal (s): a stop is due within 3 s of rest, and the slope is an estimate
     reversal_guard_s: float = 3.0
     #: the lag of the meter and the track in seeing a reversed fan (s): a track needs its
-    #: 24 matches, 0.7 s, once the blade is in view again, and 0.5 s to confirm
+    #: 24 matches, 0.7 s, once the blade is in view again, and 0.5 s to confirm; and of
+    #: the short meter in seeing a fan that crept to rest (0.9-1.2 s of its 1.5 s window)
     meter_lag_s: float = 1.3
     #: answers over this span (s) give the slowing fan's rate of change
     slope_span_s: float = 2.0
@@ -415,6 +417,11 @@ class Transitions:
         soonest = self._soonest_reversal(t_s, self._cand_rate)
         if soonest is None or t_s >= soonest or self._known_seen is None:
             return None
+        if soonest <= self._rest_unseen_until():
+            return Held(Hold.TOO_SOON,
+                        f"confirming {_what(d, cand)}: {t_s - self._read_slow_t:.2f} s after "
+                        f"the fan read slower than the floor, a fan coming to rest still "
+                        f"reads as motion (until {soonest:.1f} s)")
         zeroed = self.known is not None and self._past_zero(t_s, self.known)
         return Held(Hold.TOO_SOON,
                     f"confirming {_what(d, cand)}: {t_s - self._known_seen[0]:.2f} s after "
@@ -682,7 +689,10 @@ class Transitions:
         known way that has reached zero by ``t_s`` puts the fan at zero no sooner than
         its zero: the last answer of the old way may lie a second or more before it, at
         a rate near the floor. A zero still ahead is not used: answers after a stretch at
-        rest join the line of those before it, and put its zero seconds off."""
+        rest join the line of those before it, and put its zero seconds off. A window
+        that read the fan slower than the floor after the known way's last answer puts
+        the other way no sooner than :meth:`_rest_unseen_until`: the tracks a
+        spin-down's end leaves can claim the other way before the meter sees the rest."""
         st = self.settings
         if self.known not in WAY_KINDS or self._known_seen is None \
                 or not st.max_reversal_hz_s > 0:
@@ -691,7 +701,17 @@ class Transitions:
         soonest = t + (old + rate) / st.max_reversal_hz_s
         if self._past_zero(t_s, self.known) and self._zero_by is not None:
             soonest = max(soonest, self._zero_by + rate / st.max_reversal_hz_s)
+        soonest = max(soonest, self._rest_unseen_until())
         return min(soonest, self._cand_t + st.reversal_hold_s)
+
+    def _rest_unseen_until(self) -> float:
+        """Until when a fan read slower than the floor after the known way's last answer
+        may have come to rest unseen: the short meter reads a fan creeping to rest as
+        motion until its window has seen the rest (``meter_lag_s``); -inf if no window
+        read it so."""
+        if self._known_seen is None or not self._read_slow_t > self._known_seen[0]:
+            return -math.inf
+        return self._read_slow_t + self.settings.meter_lag_s
 
     def _watch_slowing(self, t_s: float, d: Decision, kind: Kind | None) -> None:
         """Remember when a fan seen slowing down steadily would reach zero: the line of
