@@ -399,6 +399,35 @@ def test_a_known_direction_is_carried_through_doubt_at_its_speed_until_the_fan_c
     assert [d for d, _ in run(gap + [_doubt(0.4)] * 5)[46:]] == ["unknown"] * 5
 
 
+def test_the_mirror_image_of_a_checked_direction_publishes_that_direction():
+    """Closed form, 10 answers/s, the default reversal physics (through zero at 0.3 Hz/s):
+    a fan answered 'same' at 0.36 Hz on a line that beat its mirror image, then at once
+    'reversed' at the same speed for 15 s, in a room where directions have been in doubt
+    (so the new line's own check says nothing), then 'same' again. Through zero and back
+    to 0.36 Hz takes 2.4 s: the other way at once is the mirror of the blade pattern, held
+    (no event), and the fan is still turning the way it was answered, so that way is
+    published, not unknown (spent held-out 4200020: 18 s of `unknown` while a 5-blade
+    fan turned steadily at 0.36 Hz). Not where the known direction never beat its mirror
+    (either could be the mirror's), nor at a speed off the answered one."""
+    def run(first_checked, other_hz):
+        tr = Transitions(TransitionSettings(confirm_s=0.5), 10.0)
+        seq = [_d("stopped")] * 10 + [_d("same", 0.36, checked=first_checked)] * 30 \
+            + [replace(_d("reversed", other_hz), doubtful_room=True)] * 150 \
+            + [_d("same", 0.36, checked=first_checked)] * 20
+        out, fired = [], []
+        for i, d in enumerate(seq):
+            o, ev = tr.step(i * 0.1, i, d)
+            fired += [e.kind for e in ev]
+            out.append(tr.carry(i * 0.1, o).direction.value)
+        return out[40:], fired
+    out, fired = run(True, 0.36)
+    assert fired == ["started"] and set(out) == {"same"}
+    out, fired = run(False, 0.36)
+    assert fired == ["started"] and set(out[:150]) == {"unknown"} and set(out[150:]) == {"same"}
+    out, fired = run(True, 0.6)
+    assert fired == ["started"] and set(out[:150]) == {"unknown"}
+
+
 def test_a_known_direction_is_carried_up_a_ramp_on_the_line_that_answered_it():
     """Closed form, 34 pulses/s: a fan answered `same` at 0.4 Hz on one tracked line,
     then in doubt on that line while it speeds up at 0.1 Hz/s to 1.2 Hz. The line was

@@ -24,7 +24,8 @@ rule applies. :meth:`Transitions.step` is the rules in their order:
 6. ``CONFIRMING``: a new kind needs ``confirm_s`` (a stop ``stop_confirm_s``) of answers.
 
 A decision in doubt only about the direction at the speed the known direction was last
-answered at is then published as that direction (:meth:`carry`, called on the state
+answered at, or held by rule 3 as the sudden mirror image of a known direction that beat
+its own, is then published as that direction (:meth:`carry`, called on the state
 after the analysis has taken its feedback from it: the carry changes what is published,
 not what the analysis learns): a fan cannot reverse without passing through zero, which
 ends the carry.
@@ -220,6 +221,8 @@ class Transitions:
         self._read_slow_t = -math.inf        # the last window that read the fan slower
                                              # than the floor (s)
         self._in_doubt = False               # the last step's decision had no kind
+        self._mirror_held = False            # or was held as the mirror image of a known
+                                             # direction shown to beat its own (carry)
         self._answered = False               # no rule held the last step's answer
         self._carry_line: Hashable | None = None   # the tracked line of the last answered
                                              # or carried window (carry)
@@ -236,7 +239,7 @@ class Transitions:
         every few pulses); (the state to publish, events confirmed now) out. The hold
         rules in their order, with what the decision shows of the fan noted between."""
         self.hold = None
-        self._in_doubt = self._answered = False
+        self._in_doubt = self._mirror_held = self._answered = False
         cand = self._candidate(d)
         held = self._slow_new_direction(t_s, d, cand)
         if held is not None:
@@ -262,7 +265,11 @@ class Transitions:
                      self._confirming):
             held = rule(t_s, d, cand)
             if held is not None:
-                self._carry_from = None
+                if held.rule is Hold.MIRROR_IMAGE and self._cand_sudden \
+                        and self._known_checked:
+                    self._mirror_held = True    # (the known way may be carried)
+                else:
+                    self._carry_from = None
                 return self._held(d, held), []
         d, fired = self._confirm_kind(t_s, pulse, d, cand)
         self.known_decision = d
@@ -295,7 +302,10 @@ class Transitions:
         carry), and the band moves up with it (never down: a slowing fan ends it). A
         confirmed rest is carried too, through windows with no line at all (no track:
         nothing is seen turning) and windows whose line reads the fan slower than the
-        floor (no direction is claimed there, so no start is shown)."""
+        floor (no direction is claimed there, so no start is shown). A window that rule
+        3 held as the sudden mirror image of a known direction answered on a line that
+        beat its own mirror is carried like a window in doubt: the fan cannot have
+        reversed, and the way it was answered is the checked one."""
         st = self.settings
         if self._answered:
             self._carry_line = line
@@ -313,17 +323,18 @@ class Transitions:
                 return replace(k, reason=f"stopped kept: turning slower than the floor "
                                          f"({abs(d.rate_hz):.3f} Hz < "
                                          f"{st.rate_floor_hz:.3g} Hz); {d.reason}")
-        if not self._in_doubt or self._carry_from is None or self.known not in WAY_KINDS \
-                or not st.max_reversal_hz_s > 0:
+        if not (self._in_doubt or self._mirror_held) or self._carry_from is None \
+                or self.known not in WAY_KINDS or not st.max_reversal_hz_s > 0:
             return d
         t, answered = float(t_s), self._carry_from
         rate = abs(d.rate_hz) if d.rate_hz is not None and math.isfinite(d.rate_hz) \
             else None
-        if rate is not None and (rate < self._visible_hz or d.turning
+        turning = d.turning or self._mirror_held
+        if rate is not None and (rate < self._visible_hz or turning
                                  and rate < (1.0 - CHAIN_AGREE) * answered):
             self._carry_from = None
             return d
-        if rate is None or not d.turning:
+        if rate is None or not turning:
             return d
         same_line = line is not None and line == self._carry_line
         if rate > (1.0 + CHAIN_AGREE) * answered and not same_line:
@@ -340,9 +351,11 @@ class Transitions:
         rel = d.relative_rate
         if rel is not None and math.isfinite(rel):
             rel = abs(rel) if way == Direction.SAME else -abs(rel)
+        how = ("the other way at once at this speed is the mirror image of the blade "
+               "pattern" if self._mirror_held else "the fan has turned at this speed "
+               "without a break since it was last answered " + str(way))
         return replace(d, direction=way, rotation=rotation, relative_rate=rel, turning=True,
-                       reason=f"{way} carried: the fan has turned at this speed without a "
-                              f"break since it was last answered {way}; {d.reason}")
+                       reason=f"{way} carried: {how}; {d.reason}")
 
     # -- the hold rules: each returns why it holds the decision, or None ------------------
 
