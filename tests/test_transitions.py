@@ -646,6 +646,35 @@ def test_a_reversal_is_timed_from_the_zero_of_the_slowing_line(other, first):
     assert fired == ([] if first is None else [("reversed", first)])
 
 
+@pytest.mark.parametrize("after", ["a lock the other way", "a reversal"])
+def test_a_new_direction_waits_for_the_zero_of_a_line_followed_down_to_the_floor(after):
+    """Closed form, 10 answers/s, 0.3 Hz/s: 'same' slowing at 0.044 Hz/s from 0.3 Hz,
+    answered on its line down to 0.054 Hz (at 5.6 s; the line reaches zero at 6.82 s).
+    Then at once (spent held-out 4300001, a 6-blade fan at 7.8 dB): a lock the other
+    way at 0.125-0.155 Hz for 0.6 s (an alias line; no window reads the fan slower than
+    the floor), no track, and rest. A fan on that line turns the other way at 0.125 Hz
+    no sooner than 6.82 + 0.125 / 0.3 = 7.24 s: the lock is held and only the stop
+    fires. (Timed from the last answer alone, 5.6 + 0.179 / 0.3 = 6.2 s, its count met
+    at 6.1 s, it fired a 'reversed' before the stop.) A true reversal through the line's
+    zero at about its slope is not held: from 0.1 Hz at 9.2 s on, it fires at its
+    count (9.6 s)."""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=0.75), 10.0)
+    seq = [_d("same", round(0.3 - 0.044 * 0.1 * j, 4)) for j in range(57)]
+    assert seq[-1].rate_hz == pytest.approx(0.0536, abs=0.002)
+    if after == "a lock the other way":
+        seq += [_d("reversed", 0.125 + 0.006 * j) for j in range(6)] + [_none()] * 10 \
+            + [_d("stopped")] * 40
+    else:
+        seq += [_none()] * 35 + [_d("reversed", 0.1 + 0.044 * 0.1 * j) for j in range(40)]
+    fired = []
+    for i, d in enumerate(seq):
+        fired += [(e.kind, round(e.t_s, 3)) for e in tr.step(round(i * 0.1, 3), i, d)[1]]
+    if after == "a lock the other way":
+        assert [k for k, _ in fired] == ["stopped"]
+    else:
+        assert fired == [("reversed", 9.6)]
+
+
 def _none():
     """A window with no track: no direction, no rate."""
     return Decision(Direction.UNKNOWN, None, None, None, None, 0.0, "no lock")

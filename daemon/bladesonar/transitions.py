@@ -435,7 +435,9 @@ class Transitions:
                         f"confirming {_what(d, cand)}: {t_s - self._read_slow_t:.2f} s after "
                         f"the fan read slower than the floor, a fan coming to rest still "
                         f"reads as motion (until {soonest:.1f} s)")
-        zeroed = self.known is not None and self._past_zero(t_s, self.known)
+        zeroed = self.known is not None and self._zero_by is not None \
+            and (self._past_zero(t_s, self.known)
+                 or self._line_followed_down(*self._known_seen))
         return Held(Hold.TOO_SOON,
                     f"confirming {_what(d, cand)}: {t_s - self._known_seen[0]:.2f} s after "
                     f"{self._known_seen[1]:.3f} Hz the other way"
@@ -701,8 +703,10 @@ class Transitions:
         first answered (None: no known direction, or no limit). A slowing line of the
         known way that has reached zero by ``t_s`` puts the fan at zero no sooner than
         its zero: the last answer of the old way may lie a second or more before it, at
-        a rate near the floor. A zero still ahead is not used: answers after a stretch at
-        rest join the line of those before it, and put its zero seconds off. A window
+        a rate near the floor. A zero still ahead is used only where the answers followed
+        the fan down the line to near the floor (:meth:`_line_followed_down`): answers
+        after a stretch at rest join the line of those before it, and put its zero
+        seconds off, and a lagging line puts it late. A window
         that read the fan slower than the floor after the known way's last answer puts
         the other way no sooner than :meth:`_rest_unseen_until`: the tracks a
         spin-down's end leaves can claim the other way before the meter sees the rest."""
@@ -712,10 +716,22 @@ class Transitions:
             return None
         t, old = self._known_seen
         soonest = t + (old + rate) / st.max_reversal_hz_s
-        if self._past_zero(t_s, self.known) and self._zero_by is not None:
+        if self._zero_by is not None and (self._past_zero(t_s, self.known)
+                                          or self._line_followed_down(t, old)):
             soonest = max(soonest, self._zero_by + rate / st.max_reversal_hz_s)
         soonest = max(soonest, self._rest_unseen_until())
         return min(soonest, self._cand_t + st.reversal_hold_s)
+
+    def _line_followed_down(self, t: float, old: float) -> bool:
+        """Whether the known way's last answer (``old`` Hz at ``t``) lies on its slowing
+        line (within ``CHAIN_AGREE``) under the rate a new direction needs: the answers
+        followed the fan down the line to near the floor, so its zero, even ahead, is
+        when the fan stops (a line they left, or one from answers after a rest, is
+        not)."""
+        assert self.known is not None
+        line = self._line_rate(t, self.known)
+        return line is not None and old < self._visible_hz \
+            and abs(line - old) <= CHAIN_AGREE * old
 
     def _rest_unseen_until(self) -> float:
         """Until when a fan read slower than the floor after the known way's last answer
