@@ -435,9 +435,7 @@ class Transitions:
                         f"confirming {_what(d, cand)}: {t_s - self._read_slow_t:.2f} s after "
                         f"the fan read slower than the floor, a fan coming to rest still "
                         f"reads as motion (until {soonest:.1f} s)")
-        zeroed = self.known is not None and self._zero_by is not None \
-            and (self._past_zero(t_s, self.known)
-                 or self._line_followed_down(*self._known_seen))
+        zeroed = self._line_zero_times(t_s)
         return Held(Hold.TOO_SOON,
                     f"confirming {_what(d, cand)}: {t_s - self._known_seen[0]:.2f} s after "
                     f"{self._known_seen[1]:.3f} Hz the other way"
@@ -716,11 +714,20 @@ class Transitions:
             return None
         t, old = self._known_seen
         soonest = t + (old + rate) / st.max_reversal_hz_s
-        if self._zero_by is not None and (self._past_zero(t_s, self.known)
-                                          or self._line_followed_down(t, old)):
+        if self._line_zero_times(t_s):
+            assert self._zero_by is not None    # (the line has one)
             soonest = max(soonest, self._zero_by + rate / st.max_reversal_hz_s)
         soonest = max(soonest, self._rest_unseen_until())
         return min(soonest, self._cand_t + st.reversal_hold_s)
+
+    def _line_zero_times(self, t_s: float) -> bool:
+        """Whether the known way's slowing line puts the fan at zero no sooner than its
+        zero: the line has reached zero by ``t_s``, or the known way's last answer was
+        on it near the floor (:meth:`_line_followed_down`)."""
+        if self.known is None or self._zero_by is None or self._known_seen is None:
+            return False
+        return self._past_zero(t_s, self.known) \
+            or self._line_followed_down(*self._known_seen)
 
     def _line_followed_down(self, t: float, old: float) -> bool:
         """Whether the known way's last answer (``old`` Hz at ``t``) lies on its slowing
