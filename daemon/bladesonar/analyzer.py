@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .answer import WAYS, Decision, Direction, RateState
+from .answer import WAY_KINDS, WAYS, Decision, Direction, Kind, RateState
 from .config import Config
 from .dsp import aliasing, rangescale
 from .dsp import device as dev
@@ -981,6 +981,12 @@ class PulseAnalyzer:
         published = self._reported_rate(state)
         changed = self.rest_hold.step(k, published, d, self.static)
         self.rate_bound.step(t_s, published, self.tracker)
+        # a fan not confirmed at rest may pass zero out of sight and come back the other
+        # way: a track that stood through that gap on the known way's side is no
+        # evidence of it (Tracker._stood_blind)
+        known = self.transitions.known
+        self.tracker.known_way = 0.0 if known not in WAY_KINDS else math.copysign(
+            1.0, self.ref.cycles_per_pulse) * (1.0 if known == Kind.SAME else -1.0)
         if self.static.frozen:
             self.tracker.expect_change()     # a fan at rest may start any moment
         return published, changed

@@ -498,6 +498,13 @@ class Tracker:
     #: every clear match it rejected (spent held-out 800007: a start 27 s late)
     clear_run: int = 0
     clear_k: int | None = None   # pulse of the last clear match the track accepted
+    _clear_seen: int | None = None   # pulse of the last clear match, taken or not
+    #: the sign of the known direction's rate (cycles per pulse; 0 when none is known),
+    #: set by the analysis: while one is, a track standing still is given up when a
+    #: blade comes back in view off its line after none was for longer than a coast
+    #: (:meth:`_stood_blind`)
+    known_way: float = 0.0
+    stood_blind: int = 0             # standing tracks so given up
     clear_credit: int = 0        # clear-match credit (COAST_STREAK, COAST_CREDIT)
     coasted: int = 0             # weak matches passed over while coasting (_coasts)
     updates: int = 0
@@ -671,6 +678,26 @@ class Tracker:
         period = 1.0 / max(abs(self._x[1]), 1e-9)
         return self.clear_k is not None and \
             k - self.clear_k <= min(COAST_SHARE * period, st.coast_max)
+
+    def _stood_blind(self, k: int, z: float) -> bool:
+        """Whether a clear match at pulse ``k`` (phase ``z``) ends a stretch of more than
+        ``coast_max`` pulses without one, on a track standing still (slower than
+        ``coast_min_rate``) while a direction is known (``known_way``). Such a track has
+        followed only the weak matches of no blade in view, and where a fan comes back
+        after passing zero out of sight, the clear matches that pass its phase drag it
+        either way; given up with its matches, the next lock fits the fresh ones alone.
+        Kept where it has followed the fan through zero: on the other side of zero from
+        the known direction, the match on its line (``MAX_INNOVATION``). Not after a
+        confirmed stop (no ``known_way``): there it takes a start's spin-up up at once.
+        docs/dynamics.md, "Slow reversals"."""
+        last, self._clear_seen = self._clear_seen, k
+        st = self.settings
+        if last is None or self._x is None or st.coast_max <= 0 or self.known_way == 0.0 \
+                or not abs(self._x[1]) < st.coast_min_rate or k - last <= st.coast_max:
+            return False
+        assert self.last_k is not None   # set with x
+        return self._x[1] * self.known_way >= 0.0 \
+            or abs(wrap(z - self._x[0] - self._x[1] * (k - self.last_k))) > MAX_INNOVATION
 
     def _shown_line(self) -> bool:
         """Whether the track has shown its line and turns: ``COAST_STREAK`` of clear-match
@@ -886,6 +913,10 @@ class Tracker:
         spin-up) was kept by them for half a minute, and a line standing at rest for
         110 s after the fan started."""
         st = self.settings
+        if quality >= st.min_info and self._stood_blind(int(k), float(z)):
+            self.let_go()
+            self.forget_matches()
+            self.stood_blind += 1
         self._recent.append((int(k), float(z), max(float(quality), 0.0)))
         outlier = False
         if self._x is None:
