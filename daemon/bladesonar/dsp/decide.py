@@ -21,8 +21,10 @@ be seen at all (only noise in the gate: neither stopped nor moving can be told).
 
 from __future__ import annotations
 
+import bisect
 import functools
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +34,6 @@ from ..answer import (
 )
 from ..answer import Direction, RateState
 from .fingerprint import envelope_features
-from .stats import median
 
 #: New pulses whose lag energies one matrix product gives (MotionMeter.preview): each
 #: product also spans the max_lag pulses before them, so a few dozen at a time does
@@ -353,29 +354,49 @@ def _noise_readings(length: int, window: int, max_lag: int, band: float, smooth:
 
 
 class _Recent:
-    """The last ``keep`` values, for their median: a ring, since their order does not
-    move a median (a deque copied to an array at every reading cost half of
-    :class:`AcceptFloor`'s time, on the analysis's per-decision path)."""
+    """The last ``keep`` values, for their median and quantiles: the values in arrival
+    order (which leaves first) and kept sorted beside it (an insertion and a removal by
+    bisection), so that a reading is an index rather than a partition of up to ``keep``
+    values on the analysis's per-decision path (the numpy partition was most of
+    :class:`AcceptFloor`'s time). The same values as numpy's median and partition: the
+    middle one, or the two middle ones' sum halved; NaN while the values hold one."""
 
     def __init__(self, keep: int) -> None:
-        self._v = np.empty(int(keep))
-        self._count = 0
+        self._keep = int(keep)
+        self._order: deque[float] = deque()
+        self._sorted: list[float] = []
+        self._nans = 0                   # NaNs among the values (not in _sorted)
 
     def add(self, x: float) -> None:
-        self._v[self._count % len(self._v)] = x
-        self._count += 1
+        x = float(x)
+        if len(self._order) >= self._keep:
+            old = self._order.popleft()
+            if old != old:
+                self._nans -= 1
+            else:
+                del self._sorted[bisect.bisect_left(self._sorted, old)]
+        self._order.append(x)
+        if x != x:
+            self._nans += 1
+        else:
+            bisect.insort(self._sorted, x)
 
     def __len__(self) -> int:
-        return min(self._count, len(self._v))
+        return len(self._order)
 
     def median(self) -> float:
-        return float(median(self._v[:len(self)]))
+        v, n = self._sorted, len(self._order)
+        if self._nans or not n:
+            return math.nan
+        h = n // 2
+        return v[h] if n % 2 else (v[h - 1] + v[h]) / 2.0
 
     def quantile(self, q: float) -> float:
-        """The value with a share ``q`` of them under it (the nearest rank)."""
-        n = len(self)
+        """The value with a share ``q`` of them under it (the nearest rank; NaNs rank
+        last, as numpy's partition puts them)."""
+        n = len(self._order)
         j = min(max(int(q * (n - 1) + 0.5), 0), n - 1)
-        return float(np.partition(self._v[:n], j)[j])
+        return self._sorted[j] if j < len(self._sorted) else math.nan
 
 
 class RestFloor:
