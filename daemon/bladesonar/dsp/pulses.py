@@ -854,29 +854,41 @@ class PulseAligner:
         base = np.floor(e).astype(np.int64)
         frac = e - base
         width = L + 2 * KERNEL_HALF - 1
-        raw = np.empty((n, width))
-        for k in range(n):
-            a = int(base[k]) + g.start - KERNEL_HALF + 1 - self._offset
-            if a >= 0 and a + width <= len(self._buf):
-                raw[k] = self._buf[a:a + width]
-            else:
-                raw[k] = self._seg(a + self._offset, a + self._offset + width)
+        starts = base + (g.start - KERNEL_HALF + 1 - self._offset)
+        if n and int(starts.min()) >= 0 and int(starts.max()) + width <= len(self._buf):
+            # every window within the buffer (the usual case): one gather of them all
+            raw = sliding_window_view(self._buf, width)[starts]
+        else:
+            raw = np.empty((n, width))
+            for k in range(n):
+                a = int(starts[k])
+                if a >= 0 and a + width <= len(self._buf):
+                    raw[k] = self._buf[a:a + width]
+                else:
+                    raw[k] = self._seg(a + self._offset, a + self._offset + width)
         core = raw[:, KERNEL_HALF - 1:KERNEL_HALF - 1 + L]
         finite = np.isfinite(raw).all(axis=1)
         status[(status == OK) & ~finite] = NAN
+        # (NaNs read as 0 below; a block with none, the usual case, is read as it is:
+        # the same flags without three masked copies of it)
+        clean = bool(finite.all())
         # a clipped coupling is handled (timed by the schedule): only clipping past it
         # counts; nor, with none clipped at the start, within the guard of the edge: a
         # coupling acquired unclipped can clip later (drift moves its peak across the
         # sample grid, and at some sub-sample positions the peak passes full scale), and
         # no echo comes from so near
         past = core[:, max(max(self.coupling_zone, COUPLING_GUARD) - g.start, 0):]
-        clipped = (np.abs(np.where(np.isfinite(past), past, 0.0)) >= self.clip_level).any(axis=1)
+        if not clean:
+            past = np.where(np.isfinite(past), past, 0.0)
+        clipped = (np.abs(past) >= self.clip_level).any(axis=1)
         status[(status == OK) & clipped] = CLIPPED
-        silent = ~(np.abs(np.where(np.isfinite(core), core, 0.0)) > 0.0).any(axis=1)
+        silent = ~(np.abs(core if clean else np.where(np.isfinite(core), core, 0.0))
+                   > 0.0).any(axis=1)
         status[(status == OK) & silent] = SILENT
         status[(status == OK) & (index < self.warmup)] = WARMUP
         taps = fractional_taps(frac)
-        raw = np.where(np.isfinite(raw), raw, 0.0)
+        if not clean:
+            raw = np.where(np.isfinite(raw), raw, 0.0)
         # out[k, i] = sum_m taps[k, m] raw[k, i + m]: one contraction over strided windows
         out = np.einsum("kim,km->ki", sliding_window_view(raw, 2 * KERNEL_HALF, axis=1)[:, :L],
                         taps)
