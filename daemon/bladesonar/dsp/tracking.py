@@ -188,17 +188,27 @@ def _update(x: Vec, P: Vec, z: float, r: float) -> tuple[Vec, Vec]:
         n11 = c * c * p00 + 2 * c * p01 + p11 + k1 * k1 * r
         return ((x[0] + k0 * nu) % 1.0, x[1] + k1 * nu), (n00, n01, n01, n11)
     # (I - K H) P (I - K H)^T + K r K^T written out: entry (i, j) is
-    # p_ij - k_i p_0j - (p_i0 - k_i p_00) k_j + r k_i k_j
-    p = [P[0:3], P[3:6], P[6:9]]
-    k = [p[0][0] / s, p[1][0] / s, p[2][0] / s]
-    col = [p[i][0] - k[i] * p[0][0] for i in range(3)]
-    m = [[p[i][j] - k[i] * p[0][j] - col[i] * k[j] + r * k[i] * k[j] for j in range(3)]
-         for i in range(3)]
-    for i in range(3):
-        for j in range(i):
-            m[i][j] = m[j][i] = 0.5 * (m[i][j] + m[j][i])
-    return ((x[0] + k[0] * nu) % 1.0, x[1] + k[1] * nu, x[2] + k[2] * nu), \
-        (*m[0], *m[1], *m[2])
+    # p_ij - k_i p_0j - (p_i0 - k_i p_00) k_j + r k_i k_j, then the off-diagonal pairs
+    # averaged (each entry by the same operations as a loop over i, j made them, without
+    # the loop's lists: the follower's update is on every pulse's path)
+    p00, p01, p02, p10, p11, p12, p20, p21, p22 = P
+    k0, k1, k2 = p00 / s, p10 / s, p20 / s
+    c0, c1, c2 = p00 - k0 * p00, p10 - k1 * p00, p20 - k2 * p00
+    rk0, rk1, rk2 = r * k0, r * k1, r * k2
+    m00 = p00 - k0 * p00 - c0 * k0 + rk0 * k0
+    m01 = p01 - k0 * p01 - c0 * k1 + rk0 * k1
+    m02 = p02 - k0 * p02 - c0 * k2 + rk0 * k2
+    m10 = p10 - k1 * p00 - c1 * k0 + rk1 * k0
+    m11 = p11 - k1 * p01 - c1 * k1 + rk1 * k1
+    m12 = p12 - k1 * p02 - c1 * k2 + rk1 * k2
+    m20 = p20 - k2 * p00 - c2 * k0 + rk2 * k0
+    m21 = p21 - k2 * p01 - c2 * k1 + rk2 * k1
+    m22 = p22 - k2 * p02 - c2 * k2 + rk2 * k2
+    m01 = m10 = 0.5 * (m10 + m01)
+    m02 = m20 = 0.5 * (m20 + m02)
+    m12 = m21 = 0.5 * (m21 + m12)
+    return ((x[0] + k0 * nu) % 1.0, x[1] + k1 * nu, x[2] + k2 * nu), \
+        (m00, m01, m02, m10, m11, m12, m20, m21, m22)
 
 
 def _floats(a: np.ndarray) -> Vec:
