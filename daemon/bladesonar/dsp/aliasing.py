@@ -679,7 +679,8 @@ class AliasWatch:
         if ident != self._ramp_track:
             self._ramp_track, self._ramp_pulses = ident, 0
         a, _ = tr.accel
-        if tr.follower_weight > 0.5 and abs(a) >= self.ramp_accel:
+        # (the ramp first: the weight, an exponential, is asked only of a ramp)
+        if abs(a) >= self.ramp_accel and tr.follower_weight > 0.5:
             self._ramp_pulses += 1
             if self._ramp_pulses >= RAMP_PULSES:
                 self.verified = ident
