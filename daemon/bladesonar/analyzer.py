@@ -765,8 +765,7 @@ class PulseAnalyzer:
             xv, res = xv[~burst], res[~burst]
             if not v.any():
                 return None
-        feats = fp.envelope_features(res, np.zeros(res.shape[1]), kind=a.features,
-                                     smooth=a.envelope_smooth)
+        feats = fp.envelope_features(res, None, kind=a.features, smooth=a.envelope_smooth)
         self._scale_due -= len(xv)
         if self._scale_due <= 0 and self._holds_room_mean(int(block.index[v][0])):
             self.check_scale(self.static.mean)
@@ -776,9 +775,8 @@ class PulseAnalyzer:
         dist = aliasing.distances(feats, self.aliases.fine)
         # (under normalise, at a scale that does not follow the adapting estimate)
         still_in = at_one_level(xv, self._still_level) if self.static.normalise else xv
-        still_feats = fp.envelope_features(self.slow(still_in), np.zeros(res.shape[1]),
-                                           kind="envelope", smooth=a.envelope_smooth,
-                                           band=STILL_BAND)
+        still_feats = fp.envelope_features(self.slow(still_in), None, kind="envelope",
+                                           smooth=a.envelope_smooth, band=STILL_BAND)
         return v, xv, feats, m, dist, still_feats
 
     def _streams(self) -> tuple[Any, ...]:

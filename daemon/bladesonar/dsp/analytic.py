@@ -48,10 +48,12 @@ def edge_taper(L: int) -> np.ndarray:
     return w
 
 
-def analytic_magnitude(y: np.ndarray, band: float = 1.0) -> np.ndarray:
+def analytic_magnitude(y: np.ndarray, band: float = 1.0,
+                       out: np.ndarray | None = None) -> np.ndarray:
     """|analytic signal| of each row of ``y`` (along the last axis), zero-padded by 32
     samples or more; ``band`` < 1 keeps only that fraction of the band up to Nyquist
-    (the rows' ends tapered first: ``BAND_TAPER``)."""
+    (the rows' ends tapered first: ``BAND_TAPER``). ``out``: where to write it (the
+    shape of ``y``), else a new array."""
     y = np.asarray(y, dtype=np.float64)
     L = y.shape[-1]
     if band < 1.0:
@@ -63,5 +65,5 @@ def analytic_magnitude(y: np.ndarray, band: float = 1.0) -> np.ndarray:
     if band < 1.0:
         spec[..., max(int(band * (nfft // 2)), 1):] = 0.0
     # ifft's n pads the half spectrum with the zeros of the negative frequencies
-    out: np.ndarray = np.abs(np.fft.ifft(spec, n=nfft, axis=-1)[..., :L])
-    return out
+    got: np.ndarray = np.abs(np.fft.ifft(spec, n=nfft, axis=-1)[..., :L], out=out)
+    return got

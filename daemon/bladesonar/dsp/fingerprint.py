@@ -63,16 +63,18 @@ TWIN_SHARE = 0.2
 TWIN_LEAST = 3
 
 
-def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str = "envelope",
-                      smooth: int = 5, band: float = 1.0) -> np.ndarray:
+def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray | None, *,
+                      kind: str = "envelope", smooth: int = 5, band: float = 1.0
+                      ) -> np.ndarray:
     """The vectors that are matched: one row per pulse.
 
     Parameters
     ----------
     pulses : ndarray, shape (n, L)
         Aligned gated pulses.
-    mean_pulse : ndarray, shape (L,)
-        Static part (the reference's mean pulse), removed first.
+    mean_pulse : ndarray, shape (L,), or None
+        Static part (the reference's mean pulse), removed first; None: nothing removed
+        (residuals already: the same values as a mean of zeros, without the copy).
     kind : {"envelope", "raw"}
         Envelope features (default, see module notes) or the raw mean-removed samples.
     smooth : int
@@ -87,9 +89,11 @@ def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str =
     -------
     ndarray, shape (n, L), float64
     """
-    y = np.asarray(pulses, dtype=np.float64) - np.asarray(mean_pulse, dtype=np.float64)
+    y = np.asarray(pulses, dtype=np.float64)
+    if mean_pulse is not None:
+        y = y - np.asarray(mean_pulse, dtype=np.float64)
     if kind == "raw":
-        return y
+        return y if mean_pulse is not None else y.copy()
     if kind != "envelope":
         raise ValueError(f"kind must be 'envelope' or 'raw', not {kind!r}")
     if y.ndim == 2 and len(y) > FEATURE_ROWS:
@@ -97,16 +101,37 @@ def envelope_features(pulses: np.ndarray, mean_pulse: np.ndarray, *, kind: str =
         # own), at half the time of a block of 256 whose complex spectra leave the cache
         out = np.empty_like(y)
         for i in range(0, len(y), FEATURE_ROWS):
-            out[i:i + FEATURE_ROWS] = _envelope(y[i:i + FEATURE_ROWS], smooth, band)
+            _envelope(y[i:i + FEATURE_ROWS], smooth, band, out[i:i + FEATURE_ROWS])
         return out
     return _envelope(y, smooth, band)
 
 
-def _envelope(y: np.ndarray, smooth: int, band: float) -> np.ndarray:
-    """envelope_features' envelope kind on mean-removed rows."""
-    env = analytic_magnitude(y, band)
-    if smooth > 1:
-        env = _moving_average(env, smooth)
+def _envelope(y: np.ndarray, smooth: int, band: float, out: np.ndarray | None = None
+              ) -> np.ndarray:
+    """envelope_features' envelope kind on mean-removed rows (2-D: into ``out`` if
+    given, whole rows of a C-ordered array)."""
+    if y.ndim == 2 and 1 < smooth <= DIRECT_SMOOTH:
+        # the magnitude written straight into the moving average's padded rows, the
+        # average straight into ``out``: _moving_average's and the mean's operations on
+        # the same numbers, without three copies of the block
+        n, L = y.shape
+        lo = smooth // 2
+        padded = np.empty((n, L + smooth - 1))
+        analytic_magnitude(y, band, out=padded[:, lo:lo + L])
+        padded[:, :lo] = padded[:, lo:lo + 1]
+        padded[:, lo + L:] = padded[:, lo + L - 1:lo + L]
+        env = np.empty((n, L)) if out is None else out
+        np.add(padded[:, :L], padded[:, 1:1 + L], out=env)
+        for m in range(2, smooth):
+            env += padded[:, m:m + L]
+        env /= smooth
+    else:
+        env = analytic_magnitude(y, band)
+        if smooth > 1:
+            env = _moving_average(env, smooth)
+        if out is not None:
+            out[...] = env
+            env = out
     env -= env.mean(axis=1, keepdims=True)
     return env
 
