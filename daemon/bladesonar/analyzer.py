@@ -1030,19 +1030,22 @@ class PulseAnalyzer:
     def _check_aliases(self) -> None:
         """The alias watch (:class:`aliasing.AliasWatch`) on the current track; it needs
         the long meter only for a track standing still (checked while the fan moves)."""
-        def moving() -> bool:
-            return self.motion_fed >= self.cfg.tracking.motion_threshold
         d = self.decided
         # a held static estimate (RestHold) stands for a fan at rest only until a turn is
         # decided at a clear rate: held on until a published turn released it, the check
         # a sudden turn waits for never ran, and the turn was never published (spent
         # held-out 700002: a reversal through zero held `unknown` for 20 s and missed)
-        seen_turning = d is not None and (d.direction in WAYS or d.turning) \
-            and (d.rate_hz or 0.0) >= self.rest_hold.turning_hz
-        resting = (self.static.frozen and not seen_turning) or self._quiet or (
-            d is not None and d.direction == Direction.STOPPED)
-        self.aliases.check(self.tracker, accel=self._clear_accel(), moving=moving,
+        resting = self._quiet or (d is not None and d.direction == Direction.STOPPED) or (
+            self.static.frozen and not (
+                d is not None and (d.direction in WAYS or d.turning)
+                and (d.rate_hz or 0.0) >= self.rest_hold.turning_hz))
+        # (the acceleration and the meter asked only when a check is due)
+        self.aliases.check(self.tracker, accel=self._clear_accel, moving=self._moving,
                            resting=resting)
+
+    def _moving(self) -> bool:
+        """Whether the long meter sees the fan move (at its last decision)."""
+        return self.motion_fed >= self.cfg.tracking.motion_threshold
 
     def _recheck_track(self) -> None:
         """A track the good matches mostly reject is given up for a line that fits them

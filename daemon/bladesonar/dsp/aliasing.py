@@ -449,11 +449,12 @@ class AliasWatch:
         self._phase[j] = float(phase)
         self.count += 1
 
-    def check(self, tr: Tracker, *, accel: float, moving: Callable[[], bool],
-              resting: bool = False) -> None:
+    def check(self, tr: Tracker, *, accel: float | Callable[[], float],
+              moving: Callable[[], bool], resting: bool = False) -> None:
         """Look at track ``tr`` if due (``accel``: its clear acceleration, cycles per
-        pulse^2; ``moving()``: whether the fan is seen to move, asked only for a track
-        standing still); may move the track."""
+        pulse^2, or a function giving it, asked only when a check is due: on every
+        pulse's path; ``moving()``: whether the fan is seen to move, asked only for a
+        track standing still); may move the track."""
         if not tr.locked:
             self.verdict, self.note = None, ""
             self._rate = float("nan")
@@ -493,7 +494,8 @@ class AliasWatch:
             return
         sd = math.sqrt(max(var, 0.0))
         span = int(k[-1] - k[0]) + 1
-        fracs = near_fractions(rate, span=span, rate_std=sd, accel=accel)
+        fracs = near_fractions(rate, span=span, rate_std=sd,
+                               accel=accel() if callable(accel) else accel)
         if not fracs:
             if span >= self.window // 2 and not near_fractions(rate, span=span, rate_std=sd):
                 # near no p/q over half a window even as a steady rate: the matches single
