@@ -110,6 +110,7 @@ def _envelope(y: np.ndarray, smooth: int, band: float, out: np.ndarray | None = 
               ) -> np.ndarray:
     """envelope_features' envelope kind on mean-removed rows (2-D: into ``out`` if
     given, whole rows of a C-ordered array)."""
+    env: np.ndarray
     if y.ndim == 2 and 1 < smooth <= DIRECT_SMOOTH:
         # the magnitude written straight into the moving average's padded rows, the
         # average straight into ``out``: _moving_average's and the mean's operations on
