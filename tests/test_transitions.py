@@ -348,8 +348,10 @@ def test_a_known_direction_is_carried_through_doubt_at_its_speed_until_the_fan_c
     at the known speed publish the known direction while half that time (1.33 s, the
     share under which a reversal is held as sudden) has not passed since the last
     answered or carried window; an alias speed above the band is left unknown without
-    ending the carry; a confident track under the band or under 0.1 Hz ends it, and
-    then doubt is unknown again."""
+    ending the carry; three confident tracks in a row under the band (``CARRY_DIP``),
+    or one under 0.1 Hz, end it, and then doubt is unknown again; one or two under the
+    band are a noisy follower's dip and are carried (spent held-out 4500006: one
+    decision at 0.54 Hz of a steady 0.64 Hz fan ended the carry, 175 s unknown)."""
     def run(seq):
         tr = Transitions(TransitionSettings(confirm_s=0.5), 34.0)
         out = []
@@ -370,9 +372,12 @@ def test_a_known_direction_is_carried_through_doubt_at_its_speed_until_the_fan_c
     assert [d for d, _ in out[52:]] == ["same"] * 5
     out = run([_doubt(0.4)] * 10 + [_doubt(1.2)] * 46 + [_doubt(0.4)] * 5)
     assert [d for d, _ in out[56:]] == ["unknown"] * 5
-    # a confident track under the band ends the carry at once: the fan may be slowing
+    # three confident tracks in a row under the band end the carry: the fan may be
+    # slowing; one or two are a dip, carried
     out = run([_doubt(0.4)] * 10 + [_doubt(0.2)] * 3 + [_doubt(0.4)] * 5)
-    assert [d for d, _ in out[10:]] == ["unknown"] * 8
+    assert [d for d, _ in out[10:]] == ["same"] * 2 + ["unknown"] * 6
+    out = run([_doubt(0.4)] * 10 + [_doubt(0.29)] * 2 + [_doubt(0.4)] * 5)
+    assert [d for d, _ in out[10:]] == ["same"] * 7
     # the band is the answered speed's: tracks 20 % apart do not walk the rate away
     out = run([_doubt(0.4 * 1.2 ** i) for i in range(4)])
     assert [d for d, _ in out] == ["same", "same", "unknown", "unknown"]
@@ -384,8 +389,9 @@ def test_a_known_direction_is_carried_through_doubt_at_its_speed_until_the_fan_c
     up = [_doubt(0.1 + 0.3 * i / 34) for i in range(34)]
     for zero in ([_lost()] * 23, [_weak(0.05)] * 23, [_d("stopped")] * 2 + [_lost()] * 21):
         out = run(down + zero + up)
-        # carried while within a quarter of the answered 0.4 Hz (down to 0.303 Hz)
-        assert [d for d, _ in out[:34]] == ["same"] * 12 + ["unknown"] * 22
+        # carried while within a quarter of the answered 0.4 Hz (down to 0.303 Hz), and
+        # two windows under it (a dip is not yet a slowing)
+        assert [d for d, _ in out[:34]] == ["same"] * 14 + ["unknown"] * 20
         assert [d for d, _ in out[34:]] == ["unknown"] * 57
     # the same reversal unseen (a weak track held the old line over it): the way up,
     # 2 s after the last carried window, is unknown
@@ -433,8 +439,8 @@ def test_a_known_direction_is_carried_up_a_ramp_on_the_line_that_answered_it():
     then in doubt on that line while it speeds up at 0.1 Hz/s to 1.2 Hz. The line was
     followed without a break, and a fan turns the other way only through the floor: the
     ramp is `same` all the way. The speeds above the band on another line (a new lock,
-    a move to an alias) are left unknown, as a line with no identity is; a window of the
-    line under the band (it slows down) ends the carry."""
+    a move to an alias) are left unknown, as a line with no identity is; three windows
+    of the line under the band in a row (it slows down) end the carry."""
     def run(seq, lines):
         tr = Transitions(TransitionSettings(confirm_s=0.5), 34.0)
         out = []
@@ -455,10 +461,10 @@ def test_a_known_direction_is_carried_up_a_ramp_on_the_line_that_answered_it():
     assert run(ramp, [None] * n) == ["same"] * band + ["unknown"] * (n - band)
     # a new lock carried at the answered speed is the fan the same way: its line goes on
     assert run(ramp, ["B"] * n) == ["same"] * n
-    # up to 1.2 Hz on its line, then a window of it at 0.8 Hz: the fan may be slowing
-    # to reverse, so the carry ends there and doubt is unknown again
-    out = run(ramp + [_doubt(0.8)] + [_doubt(1.2)] * 5, ["A"] * (n + 6))
-    assert out[:n] == ["same"] * n and out[n:] == ["unknown"] * 6
+    # up to 1.2 Hz on its line, then three windows of it at 0.8 Hz: the fan may be
+    # slowing to reverse, so the carry ends at the third and doubt is unknown again
+    out = run(ramp + [_doubt(0.8)] * 3 + [_doubt(1.2)] * 5, ["A"] * (n + 8))
+    assert out[:n + 2] == ["same"] * (n + 2) and out[n + 2:] == ["unknown"] * 6
 
 
 def test_a_confirmed_stop_is_kept_while_nothing_is_seen_turning_above_the_floor():

@@ -170,6 +170,12 @@ def _sudden_span(old_hz: float, new_hz: float, max_hz_s: float,
 #: a fan slowing to reverse changes speed by less within the few tenths of a second
 #: between answers, while tracks on alias lines read other speeds altogether.
 CHAIN_AGREE = 0.25
+#: Decisions in a row under the band (``CHAIN_AGREE``) that end a carry (:meth:`carry`):
+#: a follower on a noisy room's matches dips under it for a decision or two while the
+#: fan turns steadily (spent held-out 4500006: a steady 0.64 Hz fan read 0.54 Hz once,
+#: the carry ended, and the direction stayed `unknown` for 175 s); a fan slowing to
+#: reverse stays under it.
+CARRY_DIP = 3
 
 
 class Transitions:
@@ -218,6 +224,7 @@ class Transitions:
         self._carry_from: float | None = None   # the rate (Hz) the known direction
                                              # was last answered at (carry)
         self._carry_seen = -math.inf         # the last answered or carried window (s)
+        self._carry_dip = 0                  # carried windows in a row under the band
         self._read_slow_t = -math.inf        # the last window that read the fan slower
                                              # than the floor (s)
         self._in_doubt = False               # the last step's decision had no kind
@@ -284,7 +291,9 @@ class Transitions:
         either way are alike) at the speed the known direction was last answered at
         (within ``CHAIN_AGREE`` of it: the band is the answer's, not the last carried
         decision's, so tracks cannot walk the rate away in steps) is published as that
-        direction. A fan turns the other way only through zero, braked and driven at
+        direction (a window under the band too, unless ``CARRY_DIP`` in a row are:
+        a noisy follower's dip is no slowing). A fan turns the other way only through
+        zero, braked and driven at
         ``max_reversal_hz_s`` at most: from the answered speed down and up again to the
         window's takes ``(answered + rate) / max_reversal_hz_s``, and the carry ends when
         ``SUDDEN_SHARE`` of that time has passed since the last answered or carried
@@ -308,7 +317,7 @@ class Transitions:
         reversed, and the way it was answered is the checked one."""
         st = self.settings
         if self._answered:
-            self._carry_line = line
+            self._carry_line, self._carry_dip = line, 0
         if self._in_doubt and self.known == Kind.STOPPED and self.known_decision is not None:
             k = self.known_decision
             if line is None and d.rate_hz is None:
@@ -330,8 +339,9 @@ class Transitions:
         rate = abs(d.rate_hz) if d.rate_hz is not None and math.isfinite(d.rate_hz) \
             else None
         turning = d.turning or self._mirror_held
-        if rate is not None and (rate < self._visible_hz or turning
-                                 and rate < (1.0 - CHAIN_AGREE) * answered):
+        under = rate is not None and turning and rate < (1.0 - CHAIN_AGREE) * answered
+        self._carry_dip = self._carry_dip + 1 if under else 0
+        if rate is not None and (rate < self._visible_hz or self._carry_dip >= CARRY_DIP):
             self._carry_from = None
             return d
         if rate is None or not turning:

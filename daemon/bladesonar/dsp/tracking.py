@@ -699,7 +699,7 @@ class Tracker:
         Kept where it has followed the fan through zero: on the other side of zero from
         the known direction, the match on its line (``MAX_INNOVATION``). Not after a
         confirmed stop (no ``known_way``): there it takes a start's spin-up up at once.
-        docs/dynamics.md, "Slow reversals"."""
+        docs/dynamics.md, "Slow reversals". Notes ``k`` as the last clear match."""
         last, self._clear_seen = self._clear_seen, k
         st = self.settings
         if last is None or self._x is None or st.coast_max <= 0 or self.known_way == 0.0 \
