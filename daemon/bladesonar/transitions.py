@@ -299,8 +299,9 @@ class Transitions:
         ``SUDDEN_SHARE`` of that time has passed since the last answered or carried
         window (the share under which :meth:`step` holds a reversal as sudden, so the
         two rules agree on what a fan can do). What the fan shows on the way down ends
-        it too: a confident track under the band (a fan slowing, or the rate a new
-        direction needs), or an answer of rest (in :meth:`step`). Windows with no track,
+        it too: confident tracks under the band, ``CARRY_DIP`` in a row (a fan slowing),
+        one under the rate a new direction needs, or an answer of rest (in
+        :meth:`step`). Windows with no track,
         weak tracks and tracks above the band (an alias line) are not carried and do not
         end it: a weak track may hold a stale line while the fan slows beneath it, which
         the time bound covers, and alias lines come and go. Above the band, the tracked
