@@ -119,13 +119,9 @@ def _envelope(y: np.ndarray, smooth: int, band: float, out: np.ndarray | None = 
         lo = smooth // 2
         padded = np.empty((n, L + smooth - 1))
         analytic_magnitude(y, band, out=padded[:, lo:lo + L])
-        padded[:, :lo] = padded[:, lo:lo + 1]
-        padded[:, lo + L:] = padded[:, lo + L - 1:lo + L]
+        _pad_edges(padded, lo, L)
         env = np.empty((n, L)) if out is None else out
-        np.add(padded[:, :L], padded[:, 1:1 + L], out=env)
-        for m in range(2, smooth):
-            env += padded[:, m:m + L]
-        env /= smooth
+        _shifted_mean(padded, smooth, env)
     else:
         env = analytic_magnitude(y, band)
         if smooth > 1:
@@ -151,23 +147,39 @@ def _moving_average(env: np.ndarray, smooth: int) -> np.ndarray:
     running sum's cancellation)."""
     n, L = env.shape
     lo = smooth // 2        # (and smooth - lo - 1 after the row)
-    # edge padding written out: np.pad(mode="edge") cost a tenth of the daemon's
-    # analysis on small blocks
     padded = np.empty((n, L + smooth - 1))
-    padded[:, :lo] = env[:, :1]
     padded[:, lo:lo + L] = env
-    padded[:, lo + L:] = env[:, -1:]
+    _pad_edges(padded, lo, L)
+    out: np.ndarray = np.empty((n, L))
     if smooth > DIRECT_SMOOTH:
         c = np.cumsum(padded, axis=1)
-        out: np.ndarray = np.empty((n, L))
         out[:, 0] = c[:, smooth - 1]
         np.subtract(c[:, smooth:], c[:, :-smooth], out=out[:, 1:])
+        out /= smooth
     else:
-        out = padded[:, :L].copy()
-        for m in range(1, smooth):
-            out += padded[:, m:m + L]
-    out /= smooth
+        _shifted_mean(padded, smooth, out)
     return out
+
+
+def _pad_edges(padded: np.ndarray, lo: int, L: int) -> None:
+    """Repeat each row's end values, at ``lo:lo + L`` of ``padded``, into the columns
+    before and after them (np.pad(mode="edge") written out: it cost a tenth of the
+    daemon's analysis on small blocks)."""
+    padded[:, :lo] = padded[:, lo:lo + 1]
+    padded[:, lo + L:] = padded[:, lo + L - 1:lo + L]
+
+
+def _shifted_mean(padded: np.ndarray, smooth: int, out: np.ndarray) -> None:
+    """The mean of ``smooth`` shifted copies of the edge-padded rows into ``out``
+    (n, L): the first two added, then each next one, then the division."""
+    L = out.shape[1]
+    if smooth > 1:
+        np.add(padded[:, :L], padded[:, 1:1 + L], out=out)
+    else:
+        out[...] = padded[:, :L]
+    for m in range(2, smooth):
+        out += padded[:, m:m + L]
+    out /= smooth
 
 
 #: Table bins per reference pulse step (:func:`auto_bins`)
