@@ -1304,6 +1304,34 @@ def test_a_reversal_through_zero_needs_no_mirror_check():
     assert fired == [("reversed", 79 + 16)]
 
 
+def test_a_reversal_after_a_coast_through_zero_is_judged_from_the_last_clear_match():
+    """Closed form, 34 pulses/s, 0.3 Hz/s: 'same' at 0.15 Hz to pulse 99, then 44
+    answers 'same' at 0.135 Hz from a track coasting on its prediction (no clear match
+    since pulse 99: ``unseen_s`` growing to 1.3 s; a fan under ~0.14 Hz passes zero out
+    of sight, spent held-out 4600019 at 1092 s), then the other way from 0.12 Hz on a
+    line not yet checked against its mirror (pulse 144, 4.24 s). By the answers (0.135
+    Hz at 4.21 s) it comes sooner than a fan reverses; but the fan was last seen at
+    pulse 99 (2.91 s), and through zero at 0.3 Hz/s it needs (0.15 + 0.12) / 0.3 =
+    0.9 s: no mirror image. It waits until a fan could have reversed after the last
+    answer (4.21 + 0.85 s: pulse 172) and confirms there. The same answers from a
+    track that sees the blade (a clear match at each) put the fan at 0.135 Hz a pulse
+    before: the mirror image, held for its check; and so is a lock the other way after a
+    short coast (0.4 s) of a steady fan (spent 4500010: 0.14 Hz after 0.2 Hz), which no
+    fan could have made since its last clear match."""
+    up = [_d("reversed", 0.12 + 0.15 * i / 34, checked=False) for i in range(60)]
+    steady = [_d("same", 0.15)] * 100
+    coast = [replace(_d("same", 0.135), unseen_s=(i + 1) / 34) for i in range(44)]
+    fired, published, _ = _walk(steady + coast + up)
+    assert fired == [("reversed", 172)]
+    assert set(published[144:172]) == {"unknown"}
+    fired, published, _ = _walk(steady + [_d("same", 0.135)] * 44 + up)
+    assert fired == [] and set(published[144:]) == {"unknown"}
+    short = [replace(_d("same", 0.2), unseen_s=(i + 1) / 34) for i in range(14)]
+    mirror = [_d("reversed", 0.14, checked=False)] * 60
+    fired, published, _ = _walk([_d("same", 0.2)] * 100 + short + mirror)
+    assert fired == [] and set(published[114:]) == {"unknown"}
+
+
 def test_a_run_that_resumes_after_a_break_is_judged_afresh():
     """Closed form, 34 pulses/s: 'same' slowing from 0.45 Hz at 0.15 Hz/s for 2 s (pulses
     0-67, to 0.154 Hz; its line reaches zero at 3 s), three answers the other way at

@@ -963,6 +963,14 @@ class PulseAnalyzer:
             return False
         return sum(wi for wi, (acc, _) in zip(w, recent, strict=True) if acc) >= 0.8 * sum(w)
 
+    def _unseen_s(self) -> float:
+        """Seconds since the track last accepted a clear match (0 without a track): what
+        it has answered since is its prediction (Decision.unseen_s)."""
+        tr = self.tracker
+        if not tr.locked or tr.clear_k is None or tr.last_k is None:
+            return 0.0
+        return max(tr.last_k - tr.clear_k, 0) / self.cfg.prf_hz
+
     def _cycles_per_pulse(self, hz: float) -> float:
         """A rotation rate in Hz as the tracker's blade cycles per pulse (by the
         reference's own rate and cycles per pulse)."""
@@ -1154,7 +1162,7 @@ class PulseAnalyzer:
             args["rate"] = mean
             d = decide(**args)
         d = d.replaced(mirror_checked=locked and self.aliases.mirror_checked(self.tracker),
-                       doubtful_room=self.aliases.doubtful)
+                       doubtful_room=self.aliases.doubtful, unseen_s=self._unseen_s())
         misfit = self.scale_misfit
         if misfit and d.direction in WAYS:
             return Decision(Direction.UNKNOWN, None, d.relative_rate, d.rate_hz, d.rpm,

@@ -145,6 +145,10 @@ class Decision:
     doubtful_room: bool = False
     """Directions have lately been in doubt in this room (its echoes turned either way
     fit about equally: :attr:`aliasing.AliasWatch.doubtful`)."""
+    unseen_s: float = 0.0
+    """Seconds since the track last accepted a clear match (a blade in view): it has
+    coasted on its prediction since, so its answer tells where the fan was then, not
+    now (transitions.py: the last time the fan was seen turning)."""
 
     def __post_init__(self) -> None:
         # the words as members (a caller may give the word itself), the warnings a tuple

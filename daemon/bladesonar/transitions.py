@@ -207,6 +207,9 @@ class Transitions:
         self._cand_sudden = False            # a reversal whose first answer came too soon
         self._cand_impossible = False        # sooner than a fan reverses at all
         self._chain: tuple[float, float] | None = None   # (t, rate) last seen turning on
+        #: (t, rate) of the chain's last answer as its track last saw the fan (a clear
+        #: match): a coasting track's answers repeat that moment (Decision.unseen_s)
+        self._chain_seen: tuple[float, float] | None = None
         self._zero_by: float | None = None   # a slowing fan would pass zero by then (s)
         self._slowing_hz_s = 0.0
         self._seen: deque[tuple[float, float]] = deque()   # (t, rate) turning, well above
@@ -487,9 +490,18 @@ class Transitions:
             if self._kept_its_way(t_s, _rate(d)):
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen
+                self._note_seen(t_s, d)
         elif self._chain is not None and _rate(d) >= self._visible_hz \
                 and abs(_rate(d) - self._chain[1]) <= CHAIN_AGREE * self._chain[1]:
             self._chain = (float(t_s), _rate(d))
+            self._note_seen(t_s, d)
+
+    def _note_seen(self, t_s: float, d: Decision) -> None:
+        """The chain's answer ``d`` as its track last saw the fan: ``unseen_s`` before
+        ``t_s`` (kept if an earlier answer's is later)."""
+        t = float(t_s) - d.unseen_s
+        if self._chain_seen is None or t > self._chain_seen[0]:
+            self._chain_seen = (t, _rate(d))
 
     def _kept_its_way(self, t_s: float, rate: float) -> bool:
         """Whether a window in doubt at ``rate`` (Hz) shows the fan last seen on the
@@ -538,11 +550,12 @@ class Transitions:
                     return
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen  # (bounded from rest like it)
+                self._note_seen(t_s, d)
                 self._way_answered = self._known_seen
                 self._rest_since_known = False
         elif cand == Kind.STOPPED and self.known in TURNING_KINDS:
             self._see_known(t_s, 0.0)
-            self._chain = self._way_answered = None
+            self._chain = self._way_answered = self._chain_seen = None
             self._rest_since_known = True
 
     def _new_lock_after_zero(self, t_s: float, kind: Kind) -> bool:
@@ -704,7 +717,15 @@ class Transitions:
                 or self._chain is None or not st.max_reversal_hz_s > 0:
             return False
         t, old = self._chain
-        return float(t_s) < t + _sudden_span(old, rate, st.max_reversal_hz_s, share)
+        if not float(t_s) < t + _sudden_span(old, rate, st.max_reversal_hz_s, share):
+            return False
+        # a chain whose last answers came from a track coasting on its prediction (no
+        # blade in view) saw the fan last at its clear match: a fan that could have
+        # reversed through zero since then, at max_reversal_hz_s, is no mirror image
+        if self._chain_seen is None:
+            return True
+        t, old = self._chain_seen
+        return float(t_s) < t + _sudden_span(old, rate, st.max_reversal_hz_s, 1.0)
 
     def _soonest_reversal(self, t_s: float, rate: float) -> float | None:
         """When a fan last seen turning the known way could be seen turning the other
