@@ -1332,6 +1332,28 @@ def test_a_reversal_after_a_coast_through_zero_is_judged_from_the_last_clear_mat
     assert fired == [] and set(published[114:]) == {"unknown"}
 
 
+def test_a_standing_alias_is_no_sign_of_a_fan_near_zero():
+    """Closed form, 34 pulses/s, 0.3 Hz/s: 'same' at 0.236 Hz to pulse 99 (checked), three
+    answers the other way at 0.23 Hz at once (a lock on the mirror line: sudden), 27
+    with no answer, one window whose track stands still at 0.044 Hz while the alias
+    check finds another line fitting (``standing_alias``: the fan moves), then the other
+    way at 0.23 Hz again from pulse 131 (3.85 s). A window that read the fan slower
+    than the floor would have the resumed run judged afresh, as after a zero (no
+    longer sudden 0.94 s after the last 'same'), and it would confirm as a reversal
+    (spent held-out 4800004 at 135 s: a false one); a standing alias on a moving fan
+    says nothing of a zero, and the run stays the mirror image, held for its check."""
+    lock = [_d("reversed", 0.23, checked=False)] * 3
+    gap = [Decision(Direction.UNKNOWN, None, None, None, None, 0.0, "no match")] * 27
+    standing = Decision(Direction.UNKNOWN, None, 0.02, 0.044, None, 0.2,
+                        "rate ambiguous: the track stands still while the fan moves")
+    tail = [_d("reversed", 0.23, checked=False)] * 60
+    head = [_d("same", 0.236)] * 100 + lock + gap
+    fired, published, _ = _walk(head + [replace(standing, standing_alias=True)] + tail)
+    assert fired == [] and set(published[131:]) == {"unknown"}
+    fired, _, _ = _walk(head + [standing] + tail)
+    assert [k for k, _ in fired] == ["reversed"]
+
+
 def test_a_run_that_resumes_after_a_break_is_judged_afresh():
     """Closed form, 34 pulses/s: 'same' slowing from 0.45 Hz at 0.15 Hz/s for 2 s (pulses
     0-67, to 0.154 Hz; its line reaches zero at 3 s), three answers the other way at

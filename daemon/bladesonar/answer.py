@@ -145,6 +145,9 @@ class Decision:
     doubtful_room: bool = False
     """Directions have lately been in doubt in this room (its echoes turned either way
     fit about equally: :attr:`aliasing.AliasWatch.doubtful`)."""
+    standing_alias: bool = False
+    """The alias check found the track standing still while another line fits the
+    matches (the fan moves): its slow rate is no sign of a fan near zero."""
     unseen_s: float = 0.0
     """Seconds since the track last accepted a clear match (a blade in view): it has
     coasted on its prediction since, so its answer tells where the fan was then, not

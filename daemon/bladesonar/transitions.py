@@ -260,7 +260,10 @@ class Transitions:
         held = self._lone_answer(d, cand, prev)
         if held is not None:
             return self._held(d, held), []
-        if cand is None and d.rate_hz is not None and d.rate_hz < self.settings.rate_floor_hz:
+        # (a track standing still on a moving fan, Decision.standing_alias, is no sign of
+        # a fan near zero: spent held-out 4800004's mirror locks were judged afresh so)
+        if cand is None and d.rate_hz is not None and d.rate_hz < self.settings.rate_floor_hz \
+                and not d.standing_alias:
             self._read_slow_t = float(t_s)
         self._keep_chain(t_s, d, cand)
         self._watch_slowing(t_s, d, cand)
