@@ -1163,9 +1163,7 @@ class PulseAnalyzer:
             d = decide(**args)
         d = d.replaced(mirror_checked=locked and self.aliases.mirror_checked(self.tracker),
                        doubtful_room=self.aliases.doubtful, unseen_s=self._unseen_s(),
-                       standing_alias=locked and self.aliases.verdict is not None
-                       and self.aliases.verdict.frac == 0
-                       and self.aliases.verdict.status != "clear")
+                       standing_alias=locked and self.aliases.standing)
         misfit = self.scale_misfit
         if misfit and d.direction in WAYS:
             return Decision(Direction.UNKNOWN, None, d.relative_rate, d.rate_hz, d.rpm,

@@ -436,6 +436,14 @@ class AliasWatch:
         return self.mirror_note == TO_BE_CONFIRMED
 
     @property
+    def standing(self) -> bool:
+        """Whether the last check found the track standing still (near 0/q blade period
+        per pulse) with another line fitting as well or better: the fan moves, and the
+        track's slow rate says nothing of a fan near zero (Decision.standing_alias)."""
+        v = self.verdict
+        return v is not None and v.frac == 0 and v.status != "clear"
+
+    @property
     def doubtful(self) -> bool:
         """Whether directions have lately been in doubt here (``MIRROR_DOUBTFUL``)."""
         return self.mirror_doubt >= MIRROR_DOUBTFUL
