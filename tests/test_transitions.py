@@ -405,6 +405,30 @@ def test_a_known_direction_is_carried_through_doubt_at_its_speed_until_the_fan_c
     assert [d for d, _ in run(gap + [_doubt(0.4)] * 5)[46:]] == ["unknown"] * 5
 
 
+def test_a_carry_is_not_ended_by_the_fan_back_at_its_speed_after_an_excursion():
+    """Closed form, 34 pulses/s, the default reversal physics (through zero at 0.3 Hz/s):
+    a fan answered 'same' at 0.4 Hz, then for 6 answers (0.18 s) at 0.5 Hz (a follower's
+    excursion), then in doubt at 0.36 Hz. A fan cannot have reversed between answers
+    0.18 s apart (half the time through zero from 0.4 Hz is 1.33 s), so 0.36 Hz is within
+    a quarter of the slowest of them and the known way is carried; measured against the
+    last answer alone (0.36 < 0.75 x 0.5) it was a slowing, and three such windows ended
+    the carry (spent held-out 4900018: 14 s of `unknown` for a steady 0.305 Hz fan
+    answered at 0.38-0.415 Hz for 0.5 s). A fan answered at 0.5 Hz for 2 s, longer than a
+    reversal from 0.4 Hz takes, is measured against 0.5 Hz: three windows at 0.36 Hz end
+    its carry as before."""
+    def run(excursion):
+        tr = Transitions(TransitionSettings(confirm_s=0.5), 34.0)
+        seq = [_d("stopped")] * 40 + [_d("same", 0.4)] * 30 + [_d("same", 0.5)] * excursion \
+            + [_doubt(0.36)] * 10
+        out = []
+        for i, d in enumerate(seq):
+            o, _ = tr.step(i / 34.0, i, d)
+            out.append(tr.carry(i / 34.0, o).direction.value)
+        return out[-10:]
+    assert run(6) == ["same"] * 10
+    assert run(68) == ["same"] * 2 + ["unknown"] * 8
+
+
 def test_the_mirror_image_of_a_checked_direction_publishes_that_direction():
     """Closed form, 10 answers/s, the default reversal physics (through zero at 0.3 Hz/s):
     a fan answered 'same' at 0.36 Hz on a line that beat its mirror image, then at once

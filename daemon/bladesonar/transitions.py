@@ -227,6 +227,10 @@ class Transitions:
         self._carry_from: float | None = None   # the rate (Hz) the known direction
                                              # was last answered at (carry)
         self._carry_seen = -math.inf         # the last answered or carried window (s)
+        #: (t, rate) of the known direction's recent answers: the band's lower edge is
+        #: the slowest of them (carry)
+        self._carry_answers: deque[tuple[float, float]] = deque()
+        self._carry_kind: Kind | None = None   # the direction they answered
         self._carry_dip = 0                  # carried windows in a row under the band
         self._read_slow_t = -math.inf        # the last window that read the fan slower
                                              # than the floor (s)
@@ -287,9 +291,35 @@ class Transitions:
         d, fired = self._confirm_kind(t_s, pulse, d, cand)
         self.known_decision = d
         self._carry_from = _rate(d) if cand in WAY_KINDS else None
+        self._note_answered(t_s, cand)
         self._carry_seen = float(t_s)
         self._answered = True
         return d, fired
+
+    def _note_answered(self, t_s: float, cand: Kind) -> None:
+        """Keep the known direction's answers within ``SUDDEN_SHARE`` of the time a fan
+        at their speed needs to reverse: the fan cannot have reversed between them, so
+        the slowest is as much its speed as the last, and a follower's excursion above
+        it for a few decisions does not make the fan's return to it a slowing (spent
+        held-out 4900018: a steady 0.305 Hz fan answered at 0.38-0.415 Hz for 0.5 s;
+        back at 0.29-0.30 Hz in doubt it counted as slowing, the carry ended and the
+        direction stayed `unknown` for 14 s)."""
+        answers, rate = self._carry_answers, self._carry_from
+        if rate is None or not self.settings.max_reversal_hz_s > 0:
+            answers.clear()
+            return
+        if answers and self._carry_kind != cand:
+            answers.clear()
+        self._carry_kind = cand
+        t = float(t_s)
+        answers.append((t, rate))
+        span = _sudden_span(rate, rate, self.settings.max_reversal_hz_s)
+        while answers[0][0] < t - span:
+            answers.popleft()
+
+    def _carry_low(self, answered: float) -> float:
+        """The band's lower edge: the slowest recent answer (:meth:`_note_answered`)."""
+        return min([answered] + [r for _, r in self._carry_answers])
 
     def carry(self, t_s: float, d: Decision, line: Hashable | None = None) -> Decision:
         """A decision in doubt only about the direction (``turning``: a confident track
@@ -346,7 +376,8 @@ class Transitions:
         rate = abs(d.rate_hz) if d.rate_hz is not None and math.isfinite(d.rate_hz) \
             else None
         turning = d.turning or self._mirror_held
-        under = rate is not None and turning and rate < (1.0 - CHAIN_AGREE) * answered
+        under = rate is not None and turning \
+            and rate < (1.0 - CHAIN_AGREE) * self._carry_low(answered)
         self._carry_dip = self._carry_dip + 1 if under else 0
         if rate is not None and (rate < self._visible_hz or self._carry_dip >= CARRY_DIP):
             self._carry_from = None
@@ -362,6 +393,7 @@ class Transitions:
         self._carry_seen, self._carry_line = t, line
         if same_line and rate > answered:
             self._carry_from = rate
+            self._carry_answers.clear()     # (the band rides the line up, all of it)
         way = Direction.SAME if self.known == Kind.SAME else Direction.REVERSED
         known = self.known_decision
         rotation = known.rotation if known is not None and known.direction == way else None
