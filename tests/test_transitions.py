@@ -429,6 +429,32 @@ def test_a_carry_is_not_ended_by_the_fan_back_at_its_speed_after_an_excursion():
     assert run(68) == ["same"] * 2 + ["unknown"] * 8
 
 
+def test_a_fan_read_near_zero_once_it_could_be_there_makes_a_lock_of_its_old_way_new():
+    """Closed form, 10 answers/s, the default reversal physics (through zero at 0.3 Hz/s,
+    a new direction from 0.1 Hz), lines not shown to beat their mirror: a fan answered
+    'same' at 0.122 Hz, then read slower than the floor (0.03 Hz) for 1.2 s, then one
+    answer 'same' at 0.059 Hz (a new lock on a fan reversing), then 'reversed' at 0.14
+    Hz. From 0.122 Hz a fan brakes under 0.1 Hz in 0.07 s, so the slow windows are the
+    fan near zero and the lone slow answer does not renew the last speed the fan was
+    seen turning the old way at; against that (1.4 s earlier) the reversal is not
+    sudden, and it fires (spent held-out 4900015: held as the mirror image for 74 s).
+    Read slow only 0.1 s after an answer at 0.5 Hz (braking under 0.1 Hz takes 1.33 s),
+    then the old way again and at once the other way at 0.5 Hz: a mirror lock, held."""
+    def run(seq):
+        tr = Transitions(TransitionSettings(confirm_s=0.5), 10.0)
+        fired = []
+        for i, d in enumerate([_d("stopped")] * 10 + seq):
+            _, ev = tr.step(i * 0.1, i, d)
+            fired += [e.kind for e in ev]
+        return fired
+    reversing = [_d("same", 0.122)] * 30 + [_weak(0.03)] * 12 + [_d("same", 0.059)] \
+        + [_d("reversed", 0.14, checked=False)] * 30
+    assert run(reversing) == ["started", "reversed"]
+    mirror = [_d("same", 0.5)] * 30 + [_weak(0.03)] + [_d("same", 0.5)] \
+        + [_d("reversed", 0.5, checked=False)] * 12
+    assert run(mirror) == ["started"]
+
+
 def test_the_mirror_image_of_a_checked_direction_publishes_that_direction():
     """Closed form, 10 answers/s, the default reversal physics (through zero at 0.3 Hz/s):
     a fan answered 'same' at 0.36 Hz on a line that beat its mirror image, then at once

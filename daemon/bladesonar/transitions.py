@@ -608,8 +608,24 @@ class Transitions:
             return False
         if self._chain is None:
             return self._rest_since_known
-        return self._below_floor(t_s, kind) \
-            or (self._read_slow_t > self._chain[0] and self._chain[1] < self._visible_hz)
+        return self._below_floor(t_s, kind) or self._read_slow_once_reachable()
+
+    def _read_slow_once_reachable(self) -> bool:
+        """Whether a window read the fan slower than the floor after the chain's last
+        answer, no sooner than a fan braked at ``max_reversal_hz_s`` from that answer's
+        speed reaches the rate a new direction needs: at once after a slow answer; after
+        a faster one, once it could be there (spent held-out 4900015: the old way's track
+        coasted at 0.122 Hz while the fan slowed to zero, windows read it at 0.003-0.045
+        Hz for 1.2 s, then a new lock claimed the old way at 0.059 Hz, renewed the chain,
+        and the reversal 0.14 s later was held as sudden for 74 s)."""
+        if self._chain is None or not self._read_slow_t > self._chain[0]:
+            return False
+        t, old = self._chain
+        over = max(old - self._visible_hz, 0.0)
+        vmax = self.settings.max_reversal_hz_s
+        if over == 0.0:
+            return True
+        return vmax > 0 and self._read_slow_t >= t + over / vmax
 
     def _note_candidate(self, t_s: float, d: Decision, cand: Kind | None,
                         prev: Kind | None) -> None:
