@@ -325,8 +325,9 @@ class Transitions:
         """A decision in doubt only about the direction (``turning``: a confident track
         whose mirror image or an alias rate fits as well, in a room whose echoes turned
         either way are alike) at the speed the known direction was last answered at
-        (within ``CHAIN_AGREE`` of it: the band is the answer's, not the last carried
-        decision's, so tracks cannot walk the rate away in steps) is published as that
+        (within ``CHAIN_AGREE`` of it, its lower edge the slowest answer of the moments
+        just before, :meth:`_note_answered`: the band is the answers', not the last
+        carried decision's, so tracks cannot walk the rate away in steps) is published as that
         direction (a window under the band too, unless ``CARRY_DIP`` in a row are:
         a noisy follower's dip is no slowing). A fan turns the other way only through
         zero, braked and driven at
