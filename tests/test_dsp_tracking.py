@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -810,3 +812,38 @@ def test_a_standing_track_that_saw_nothing_for_longer_than_a_coast_is_given_up()
         wrong.append(signs)
         assert st.locked and abs(st.rate + 0.04) < 2e-3
     assert max(wrong) <= 10 and sum(wrong) <= 40, wrong
+
+
+def test_parabola_slope_is_the_derivative_at_the_last_pulse_and_averages_noise():
+    """A changing rate read from matches (analyzer.ramp_rate): on phases of an exact
+    parabola u(k) = a + b k + c k^2 the slope at pulse K is b + 2 c K (closed form),
+    whatever the weights; with white phase noise of standard deviation s on n equally
+    weighted, evenly spaced pulses it scatters about that by sqrt(var) of the least-squares
+    slope, sqrt(sigma^2 (X'X)^-1)[1,1] (closed form), and a point of weight 0 counts
+    for nothing."""
+    from bladesonar.dsp.tracking import parabola_slope
+
+    k = np.arange(100, 168, dtype=np.float64)
+    a, b, c = 0.3, 0.011, 2.0e-5
+    u = a + b * k + c * k * k
+    w = np.linspace(0.2, 1.0, len(k))
+    assert parabola_slope(k, u, w, k[-1], 68.0) == pytest.approx(b + 2 * c * k[-1], rel=1e-9)
+    assert parabola_slope(k, u, w, 130.0, 68.0) == pytest.approx(b + 2 * c * 130.0, rel=1e-9)
+    bad = u.copy()
+    bad[5] += 0.3
+    w0 = np.ones(len(k))
+    w0[5] = 0.0
+    assert parabola_slope(k, bad, w0, k[-1], 68.0) == pytest.approx(b + 2 * c * k[-1],
+                                                                     rel=1e-9)
+    rng = np.random.default_rng(3)
+    s = 0.02
+    X = np.column_stack([np.ones(len(k)), k - k[-1], (k - k[-1]) ** 2])
+    sd = s * math.sqrt(np.linalg.inv(X.T @ X)[1, 1])
+    got = np.array([parabola_slope(k, u + rng.normal(0.0, s, len(k)), np.ones(len(k)),
+                                   k[-1], 68.0) for _ in range(2000)])
+    err = got - (b + 2 * c * k[-1])
+    assert abs(err.mean()) < 4 * sd / math.sqrt(len(got))
+    assert err.std() == pytest.approx(sd, rel=0.06)
+    # too few distinct pulses for a parabola: no slope
+    assert math.isnan(parabola_slope(np.array([1.0, 1.0, 2.0]), np.zeros(3), np.ones(3),
+                                     2.0, 1.0))

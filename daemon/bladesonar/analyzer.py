@@ -38,7 +38,7 @@ from .dsp.decide import (
 )
 from .dsp.pulses import DROPOUT, OK, WARMUP, AlignedPulses, PulseAligner
 from .dsp.stats import median
-from .dsp.tracking import Tracker, TrackState
+from .dsp.tracking import MAX_INNOVATION, Tracker, TrackState, parabola_slope, wrap
 from .reference_build import Reference, check_compatible
 from .transitions import Event, Transitions
 from .tuning import (
@@ -50,6 +50,8 @@ from .tuning import (
     HOLD_S,
     NOISE_FALL,
     NOISE_MARGIN,
+    RAMP_FIT_LEAST,
+    RAMP_FIT_S,
     RECHECK_EVERY,
     REST_KEEP,
     REST_LEAST,
@@ -529,6 +531,10 @@ class PulseAnalyzer:
     _carry_restart: set[int] = field(default_factory=set)
     _unwrapped: deque[tuple[int, float]] = field(default_factory=deque)
     _track_id: tuple[Any, ...] = ()
+    #: the track's clear matches over the last RAMP_FIT_S, (pulse, phase unwrapped along
+    #: the follower, quality), and the follower's last (pulse, unwrapped, wrapped) phase
+    _fit: deque[tuple[int, float, float]] = field(default_factory=deque)
+    _fit_at: tuple[int, float, float] | None = None
     #: range scale c_now / c_ref (dsp/rangescale.py): its estimate, the correlation it
     #: rests on, and the rescaler of features when it is used
     scale: float = 1.0
@@ -840,6 +846,8 @@ class PulseAnalyzer:
         of n PRIs has a wrong rate), and the window's mean rate starts afresh."""
         self.tracker.forget_matches()
         self._unwrapped.clear()
+        self._fit.clear()
+        self._fit_at = None
         self.restarts += 1
 
     def _holds_room_mean(self, k: int) -> bool:
@@ -882,9 +890,12 @@ class PulseAnalyzer:
         tid = tr.identity
         if not st.locked or tid != self._track_id:
             self._unwrapped.clear()
+            self._fit.clear()
+            self._fit_at = None
             self._track_id = tid
             if not st.locked:
                 return
+        self._note_fit(k, st)
         h = self._unwrapped
         if h:
             k0, u0 = h[-1]
@@ -895,6 +906,41 @@ class PulseAnalyzer:
                 h.popleft()
         else:
             h.append((k, float(st.phase)))
+
+    def _note_fit(self, k: int, st: TrackState) -> None:
+        """Keep pulse ``k``'s match for :meth:`ramp_rate` if it is clear and on the
+        track's line, its phase unwrapped along the follower's (a changing rate's own
+        line: on a ramp the constant-rate track runs ahead of the fan between bursts)."""
+        f = self.tracker.follower_phase
+        if f is None:
+            self._fit.clear()
+            self._fit_at = None
+            return
+        last = self._fit_at
+        u = f if last is None else last[1] + wrap(f - last[2])
+        self._fit_at = (k, u, f)
+        r = wrap(st.z - f)
+        if st.quality >= self.tracker.settings.min_info and not st.outlier \
+                and abs(r) < MAX_INNOVATION:
+            self._fit.append((k, u + r, st.quality))
+        span = max(int(round(RAMP_FIT_S * self.cfg.prf_hz)), 2 * RAMP_FIT_LEAST)
+        while self._fit and self._fit[0][0] <= k - span:
+            self._fit.popleft()
+
+    def ramp_rate(self) -> float | None:
+        """A changing rate read from the track's clear matches of the last RAMP_FIT_S
+        (cycles per pulse): the slope at the latest pulse of a quadratic through their
+        phases, each weighed by its quality as the filters weigh it. The follower's
+        rate swings with each burst of matches where they come in bursts; the fit
+        averages the bursts of two seconds. None with too few matches or too short a
+        span of them."""
+        pts, at = self._fit, self._fit_at
+        span = max(int(round(RAMP_FIT_S * self.cfg.prf_hz)), 2 * RAMP_FIT_LEAST)
+        if at is None or len(pts) < RAMP_FIT_LEAST or pts[-1][0] - pts[0][0] < span // 2:
+            return None
+        a = np.array(pts)
+        rate = parabola_slope(a[:, 0], a[:, 1], a[:, 2], at[0], span)
+        return rate if math.isfinite(rate) else None
 
     def window_rate(self) -> float | None:
         """The mean phase rate over the last window (cycles per pulse): the unwrapped
@@ -999,7 +1045,11 @@ class PulseAnalyzer:
 
     def _reported_rate(self, d: Decision) -> Decision:
         """The rate a turning state reports. The latest rate is the follower's (it
-        follows a change of speed as soon as the matches show it); a settled fan reads
+        follows a change of speed as soon as the matches show it); a changing one is
+        its mean with :meth:`ramp_rate`'s (where matches come in bursts the follower
+        swings with each, and the fit through two seconds of them lags a ramp's knees:
+        on spent held-out 5100001-20 each alone was the worse in some rooms, the mean
+        took the pooled ramp p95 from 11.6 to 9.7 %); a settled fan reads
         its window's mean instead (a wobble of a few per cent averages out), or the
         quieter track's rate before the window is full, but only while that agrees with
         the latest rate within SETTLED_AGREE: at the onset of a ramp both still hold the
@@ -1015,7 +1065,11 @@ class PulseAnalyzer:
             return d
         now, _ = tr.rate_now
         rate = now
-        if d.rate_state == RateState.SETTLED:
+        if d.rate_state == RateState.CHANGING:
+            fit = self.ramp_rate()
+            if fit is not None and fit * now > 0:
+                rate = 0.5 * (now + fit)
+        elif d.rate_state == RateState.SETTLED:
             mean = self.window_rate()
             steady = mean if mean is not None else tr.track_rate[0]
             if steady * now > 0 and abs(steady - now) <= SETTLED_AGREE * abs(steady):

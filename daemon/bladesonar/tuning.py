@@ -71,6 +71,16 @@ RECHECK_EVERY = 8
 #: window's mean rate, for the window to read as steady (a wobble) rather than a ramp.
 TREND_SHARE = 0.02
 
+#: Seconds of a track's clear matches a changing rate is read from (the slope, at the
+#: latest pulse, of a quadratic through their phases: PulseAnalyzer.ramp_rate), and the
+#: fewest matches it needs. Where matches come in bursts (a slow fan, a blade out of view
+#: half its period, low SNR) the follower's rate swings with each burst: on spent
+#: held-out rooms at 7.7-12.8 dB its error on ramps was 8 % or more on 26-30 % of the
+#: states with no lag in the median. One second is too short to average a burst out;
+#: 3 s lags a ramp's knees (docs/dynamics.md, the fiftieth range).
+RAMP_FIT_S = 2.0
+RAMP_FIT_LEAST = 8
+
 #: Largest difference between a settled fan's steady rate (the window's mean, or the
 #: track's) and the latest rate (the follower's), as a share, for the steady one to be
 #: reported: the follower's own wander on a steady fan is about 1.4 % at the 95th

@@ -331,6 +331,19 @@ def circular_rate_search(k: np.ndarray, z: np.ndarray, w: np.ndarray, max_rate: 
     return rate, (math.atan2(cbest.imag, cbest.real) / (2 * math.pi)) % 1.0, abs(cbest) / sw
 
 
+def parabola_slope(k: np.ndarray, u: np.ndarray, w: np.ndarray, at: float,
+                   scale: float) -> float:
+    """The slope at pulse ``at`` (cycles per pulse) of the weighted least-squares parabola
+    through unwrapped phases ``u`` at pulses ``k`` (each row weighed by ``w``: a squared
+    weight in the sum); ``scale`` (pulses, > 0) only conditions the system. NaN when it is
+    singular."""
+    x = (np.asarray(k, dtype=np.float64) - at) / scale
+    w = np.asarray(w, dtype=np.float64)
+    A = np.column_stack([w, w * x, w * x * x])
+    c, _, rank, _ = np.linalg.lstsq(A, np.asarray(u, dtype=np.float64) * w, rcond=None)
+    return float(c[1]) / scale if rank == 3 else float("nan")
+
+
 def curved_start(k: np.ndarray, z: np.ndarray, var: np.ndarray, rate: float, phase: float,
                  max_accel: float, *, outlier: float = 0.15
                  ) -> tuple[np.ndarray, np.ndarray] | None:
