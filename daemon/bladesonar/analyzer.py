@@ -1189,10 +1189,16 @@ class PulseAnalyzer:
         # the short meter sees no change beyond noise: the fan may be coming to rest, and
         # a track coasting on is no direction to check against its mirror
         self._quiet = still < self._decide_settings.still_threshold
+        # a fan seen at rest: its static estimate held, or its rest confirmed (a rest that
+        # comes more than SNAPSHOTS after the fan last turned briskly finds no copy of
+        # the estimate to hold, and there a lock on the resting blade at 0.11 Hz, the
+        # short meter quiet at 1.00-1.03, was published as a start 0.9 s after the stop:
+        # held-out 5300002, spent); a fan that starts moves its echoes for the meter
+        at_rest = self.static.frozen or self.transitions.known == Kind.STOPPED
         args: dict[str, Any]       # (decide's keywords, given twice below)
         args = dict(still=still, accel=accel * prf,
                     changing_odds=self.tracker.follower_weight,
-                    at_rest=self.static.frozen, seen_still=self._seen_still(),
+                    at_rest=at_rest, seen_still=self._seen_still(),
                     still_lags=self.still.max_lag, rate=rate, rate_std=sd, locked=locked,
                     accepted=accepted,
                     # (numpy's mean is this sum over the count, at twice the cost)
