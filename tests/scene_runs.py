@@ -3,6 +3,11 @@ schedule of that scene rendered for analyze (tests of traced held-out scenes).""
 
 from __future__ import annotations
 
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
 import numpy as np
 
 from bladesonar import config
@@ -44,3 +49,15 @@ def learned_and_rendered(seed: int, schedule: str, seconds: float
                     snr_db=dr.snr_db, drift_ppm=dr.drift_ppm, nuisances=dr.nuisances,
                     include_paths=False)
     return dr, cfg, ref, y
+
+
+def days_module() -> ModuleType:
+    """tools/days.py, the module tools/bench_day runs its days with (the tests of a day
+    as the bench streams it: the same schedule, reference and advice taken)."""
+    path = Path(__file__).resolve().parent.parent / "tools" / "days.py"
+    spec = importlib.util.spec_from_file_location("days", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("days", mod)
+    spec.loader.exec_module(mod)
+    return mod

@@ -6,36 +6,22 @@ truth. The events must come out of the scorer as truth and be found by the pipel
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 
 from bladesonar.sim import random_scene
 from bladesonar.sim.scene3d import Scene3D
 from bladesonar.sim.schedule import parse
-from scene_runs import streamed
+from scene_runs import days_module, streamed
 
 pytestmark = pytest.mark.slow
 
-TOOLS = Path(__file__).resolve().parent.parent / "tools"
 #: a 3-blade fan 2.4 m from the sensor (1.0 m off its axis), 28.4 dB, a phone's speaker:
 #: an easy room, so a miss here is the 3-D path's, not the scene's
 SEED = 5
 
 
-def _days():
-    spec = importlib.util.spec_from_file_location("days", TOOLS / "days.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("days", mod)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_a_3d_day_stops_and_starts_and_the_pipeline_finds_both():
-    days = _days()
+    days = days_module()
     cfg, _, _, live, dr = days.random_day(0.02, SEED, dims=3)
     assert isinstance(dr, random_scene.DayDraw3D)
     d, r = dr.ref_direction, f"{dr.ref_rate_hz:.3f}"
@@ -56,7 +42,7 @@ def test_a_3d_day_stops_and_starts_and_the_pipeline_finds_both():
 
 
 def test_the_2d_random_day_is_the_default_and_other_dims_are_refused():
-    days = _days()
+    days = days_module()
     _, sch, sim, _, dr = days.random_day(0.02, SEED)
     assert isinstance(dr, random_scene.SceneDraw) and not isinstance(sim.scene, Scene3D)
     assert sch.to_string() == parse(random_scene.draw(SEED).schedule(72.0)).to_string()

@@ -12,34 +12,21 @@ schedule, scored by sim/score.py; the day is tools/bench_day's own (tools/days.p
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from bladesonar.live import capture_pulses
 from bladesonar.sim.score import true_time
+from scene_runs import days_module
 
 pytestmark = pytest.mark.slow   # 640 s of the day streamed, about 45 s of CPU
 
-TOOLS = Path(__file__).resolve().parent.parent / "tools"
 SEED = 5300002
 UNTIL_S = 640.0
 
 
-def _days():
-    spec = importlib.util.spec_from_file_location("days", TOOLS / "days.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("days", mod)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_a_rest_with_no_held_estimate_is_not_left_for_a_lock_on_the_resting_blade():
-    cfg, sch, sim, live, dr = _days().random_day(0.4, SEED)
+    cfg, sch, sim, live, dr = days_module().random_day(0.4, SEED)
     fs = cfg.audio.sample_rate
     events = []
     for pos, x in capture_pulses((xs for xs, _ in sim.chunks(0.4 * 3600.0)), live.pri):
