@@ -1049,7 +1049,7 @@ class PulseAnalyzer:
         its mean with :meth:`ramp_rate`'s (where matches come in bursts the follower
         swings with each, and the fit through two seconds of them lags a ramp's knees:
         on spent held-out 5100001-20 each alone was the worse in some rooms, the mean
-        took the pooled ramp p95 from 11.6 to 9.7 %); a settled fan reads
+        took the pooled ramp p95 from 10.4 to 9.2 %); a settled fan reads
         its window's mean instead (a wobble of a few per cent averages out), or the
         quieter track's rate before the window is full, but only while that agrees with
         the latest rate within SETTLED_AGREE: at the onset of a ramp both still hold the

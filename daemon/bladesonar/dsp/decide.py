@@ -660,8 +660,9 @@ def decide(*, rate: float, rate_std: float, locked: bool, accepted: float, quali
         model over the constant-rate one on the recent matches (:class:`tracking.Tracker`):
         above 1/2, with a change of at least ``changing_hz_s``, the rate is 'changing'.
     at_rest : bool
-        The fan was seen to come to rest and the static estimate is held (the analysis's
-        ``StaticRemover.frozen``): a quiet meter then outweighs any track.
+        The fan was seen to come to rest: the static estimate is held (the analysis's
+        ``StaticRemover.frozen``) or the rest was confirmed (the state machine's known
+        state is stopped): a quiet meter then outweighs any track.
     seen_still : bool
         The matches show the blade standing still in view (the analysis's
         ``_seen_still``): a short meter under ``SEEN_STILL_FACTOR`` times the threshold
