@@ -535,6 +535,7 @@ class PulseAnalyzer:
     #: the follower, quality), and the follower's last (pulse, unwrapped, wrapped) phase
     _fit: deque[tuple[int, float, float]] = field(default_factory=deque)
     _fit_at: tuple[int, float, float] | None = None
+    _fit_span: int = field(init=False)              # RAMP_FIT_S in pulses
     #: range scale c_now / c_ref (dsp/rangescale.py): its estimate, the correlation it
     #: rests on, and the rescaler of features when it is used
     scale: float = 1.0
@@ -564,6 +565,7 @@ class PulseAnalyzer:
         self.rate_bound = RateBound(c.rate_floor_hz, c.max_ramp_hz_s, self._cycles_per_pulse)
         self._decide_settings = decide_settings(self.cfg)
         self.window = max(int(round(self.cfg.daemon.window_s * self.cfg.prf_hz)), 20)
+        self._fit_span = max(int(round(RAMP_FIT_S * self.cfg.prf_hz)), 2 * RAMP_FIT_LEAST)
         self.noise = NoiseFloor(NOISE_FALL, self.window)
         self._recent_acc = np.zeros(4 * self.window)
         self._recent_q = np.zeros(4 * self.window)
@@ -923,8 +925,7 @@ class PulseAnalyzer:
         if st.quality >= self.tracker.settings.min_info and not st.outlier \
                 and abs(r) < MAX_INNOVATION:
             self._fit.append((k, u + r, st.quality))
-        span = max(int(round(RAMP_FIT_S * self.cfg.prf_hz)), 2 * RAMP_FIT_LEAST)
-        while self._fit and self._fit[0][0] <= k - span:
+        while self._fit and self._fit[0][0] <= k - self._fit_span:
             self._fit.popleft()
 
     def ramp_rate(self) -> float | None:
@@ -934,8 +935,7 @@ class PulseAnalyzer:
         rate swings with each burst of matches where they come in bursts; the fit
         averages the bursts of two seconds. None with too few matches or too short a
         span of them."""
-        pts, at = self._fit, self._fit_at
-        span = max(int(round(RAMP_FIT_S * self.cfg.prf_hz)), 2 * RAMP_FIT_LEAST)
+        pts, at, span = self._fit, self._fit_at, self._fit_span
         if at is None or len(pts) < RAMP_FIT_LEAST or pts[-1][0] - pts[0][0] < span // 2:
             return None
         a = np.array(pts)
