@@ -373,3 +373,42 @@ def test_a_winner_moves_the_track_only_once_each_angle_was_seen_enough():
     assert (watch.moves, watch.mirror_moves) == (1, 0)
     assert float(tr.x[1]) == pytest.approx(rate, abs=1e-6)
     assert 48 <= moved_at <= 48 + 24, moved_at     # (unbounded, it moved on pulse 18)
+
+
+@pytest.mark.parametrize("moving", [True, False])
+def test_a_track_standing_while_the_fan_moves_is_checked_though_a_ramp_verified_it(moving):
+    """The fan turns at 1/7 blade period per pulse; the track stands at zero on the line
+    the strobed matches draw (a table clear at one angle gives a clear match once a
+    period, at nearly the same phase) and was verified by the ramp that brought it there
+    (spent held-out 5500017: 165 s so). While the long meter sees the fan move, a ramp's
+    verdict does not exempt a standing track from the alias check: it is moved to the
+    true line (the table here shows every angle, so the line fit can tell). With the fan
+    not seen to move, the standing track is left alone. The track is scripted (a real
+    Tracker whose line is set), as in ``_watch_on``."""
+    from bladesonar.dsp.tracking import Tracker, TrackerSettings
+    table = _table(visible=None)
+    rate, n = 1 / 7, 170
+    k, f = _pulses(table, rate, n=n)
+    fine = aliasing.fine_table(table)
+    dist = aliasing.distances(f, fine)
+    watch = aliasing.AliasWatch(fine, 170, 0.03, min_rate=0.003)
+    tr = Tracker(TrackerSettings(max_rate=0.45))
+    tr.start_k = tr.locked_k = 0
+    tr.P = np.diag([1e-4, 1e-8])
+    tr.x = np.array([0.5, 0.0])
+    tr.last_k = 0
+    watch.verified = tr.identity                # (as a ramp verifies it)
+    for i in range(n):
+        if tr.relocks == 0:
+            tr.x = np.array([0.5, 0.0])                                # standing
+        else:
+            assert tr.x is not None and tr.last_k is not None
+            tr.x = np.array([(tr.x[0] + tr.x[1] * (i - tr.last_k)) % 1.0, tr.x[1]])
+        tr.last_k = i
+        watch.push(i, dist[i], float(tr.x[0]))
+        watch.check(tr, accel=0.0, moving=lambda: moving, resting=True)
+    assert tr.x is not None
+    if moving:
+        assert watch.moves == 1 and float(tr.x[1]) == pytest.approx(rate, abs=1e-6)
+    else:
+        assert watch.moves == 0 and float(tr.x[1]) == 0.0

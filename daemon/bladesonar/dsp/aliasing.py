@@ -478,7 +478,7 @@ class AliasWatch:
                 if self.doubtful and tr.identity != self._mirror_ok else ""
         elif self._check_mirror(tr):
             return
-        if tr.identity == self.verified:
+        if tr.identity == self.verified and not self._stands_while_moving(tr, moving):
             # a track that followed the phase continuously from a stretch where its line
             # was shown to be the true one cannot have jumped to an alias (a jump of 1/q
             # in rate): a ramp through p/q keeps its answer (a ramp through 1/18 was
@@ -520,6 +520,17 @@ class AliasWatch:
         self.verdict = v
         if v is not None:
             self._act(tr, v, int(k[-1]), span < SEEN_EACH * v.frac.denominator)
+
+    def _stands_while_moving(self, tr: Tracker, moving: Callable[[], bool]) -> bool:
+        """Whether the track stands (its line sweeps less than ``MIRROR_MIN_SWEEP`` over
+        half a window) while the long meter sees the fan move: a ramp does not vouch for
+        such a track. Where the table is clear at one angle only, the clear matches come
+        once a blade period, and a fan turning near q pulses a period strobes them into a
+        line near zero that follows the fan's ramp as an alias does (spent held-out
+        5500017: a start to 0.68 Hz at 7.3 pulses a period was tracked standing for
+        165 s, verified by the ramp, never checked against its aliases)."""
+        w, _ = tr.track_rate            # (locked)
+        return abs(w) * (self.window // 2) < MIRROR_MIN_SWEEP and moving()
 
     def _window_of(self, tr: Tracker) -> tuple[np.ndarray, np.ndarray]:
         """Ring indices and pulse numbers of the window's pulses since the track began."""
