@@ -1677,3 +1677,58 @@ def test_a_mirror_lock_just_after_a_start_is_still_sudden():
                                  + [_d("reversed", 0.12, checked=False)] * 100)
     assert [k for k, _ in fired] == ["stopped", "started"] and tr.known == Kind.SAME
     assert set(published[96 + 136 + 22:]) == {"unknown"}
+
+
+def test_a_slowing_line_refuted_by_a_fan_followed_long_after_its_zero_guards_no_stop():
+    """Closed form (the spent held-out scene 5400014 at 734 s): 'same' slowing from 0.3 Hz
+    at 0.05 Hz/s to 0.15 Hz (1-4 s: the line reaches zero at 7 s), then 20 s at 0.12 Hz
+    (under three times the floor: too slow to move the line), then quiet. The answers
+    followed the fan long after the line's zero (past 7 + 3 + 1.3 s): it settled at
+    0.12 Hz, and the line says nothing of now. Its sudden quiet is waited for as a
+    reversal out of view (0.12 Hz is within reach of a turn out of view): no stop before
+    3 s after its last answer (23.9 + 3 = 26.9 s). Kept, the line's old zero let the stop
+    fire at its confirmation (24.7 s), though the fan was reversing through zero."""
+    tr, k = _slowed(TransitionSettings(), 4.0, -0.05)
+    for j in range(200):
+        tr.step(4.0 + 0.1 * (j + 1), k + j, _d("same", 0.12))
+    t = _stop_time(tr, 24.1, k + 200, until=40.0)
+    assert t is not None and 26.9 - 1e-9 <= t < 27.1, t
+
+
+def test_weak_answers_after_the_fan_read_slow_do_not_carry_the_old_way():
+    """Closed form (the spent held-out scene 5400008 at 278 s): 'reversed' at 0.15 Hz to
+    pulse 101, then 0.5 s of windows that read the fan at 0.03 Hz (slower than the floor:
+    it may have passed zero), then weak answers at 0.17 Hz (within CHAIN_AGREE of the
+    old way's speed, but after the fan was read near zero: they may be either way), then
+    'same' at 0.17 Hz on a line not checked against its mirror, 2.4 s after the old way's
+    last answer, later than the 1.07 s a fan needs through zero. A reversal at its 17th
+    answer; read as the old way still turning, the weak answers held it as sudden."""
+    old = [_d("reversed", 0.15)] * 102
+    slow = [_weak(0.03)] * 17
+    weak = [_weak(0.17)] * 34
+    new = [_d("same", 0.17, checked=False)] * 60
+    fired, published, tr = _walk(old + slow + weak + new)
+    assert fired == [("reversed", 153 + 16)] and tr.known == Kind.SAME
+    # without the slow windows the weak answers at the fan's speed do carry the old way
+    fired, published, tr = _walk(old + weak + new)
+    assert fired == [] and set(published[136:]) == {"unknown"}
+
+
+def test_in_a_doubtful_room_doubt_after_a_rest_answer_does_not_carry_the_old_way():
+    """Closed form (the spent held-out scene 5400006 at 254 s): in a doubtful room,
+    'same' at 0.17 Hz to pulse 101, a rest answered for 0.2 s (the fan passing zero),
+    0.3 s with no answer, then 3.5 s in doubt speeding up from 0.14 Hz, then 'reversed'
+    at 0.3 Hz. The rest ended the known way's chain: doubt after it may be either way,
+    and the other way, 4 s after the rest (a fan needs 1 s from rest to 0.3 Hz), is a
+    reversal at its 17th answer. Read as the old way speeding up again from rest (within
+    0.3 Hz/s), the doubt held the reversal as sudden."""
+    def doubt(rate):
+        return Decision(Direction.UNKNOWN, None, None, rate, None, 0.3,
+                        "direction to be confirmed", turning=True, doubtful_room=True)
+    same = [replace(_d("same", 0.17), doubtful_room=True)] * 102
+    rest = [replace(_d("stopped"), doubtful_room=True)] * 7
+    up = [doubt(0.14 + 0.16 * i / 119) for i in range(119)]
+    other = [Decision(Direction.REVERSED, None, None, 0.3, None, 0.9, "test",
+                      doubtful_room=True)] * 60
+    fired, published, tr = _walk(same + rest + [_lost()] * 10 + up + other)
+    assert fired == [("reversed", 238 + 16)] and tr.known == Kind.REVERSED

@@ -519,16 +519,21 @@ class Transitions:
         """Answers with no direction that still see the fan turning at its speed extend
         the chain a reversal through zero must break (:meth:`_sudden_reversal`): in a
         doubtful room a window in doubt about the direction at any clear rate, elsewhere
-        one within ``CHAIN_AGREE`` of the chain's speed."""
+        one within ``CHAIN_AGREE`` of the chain's speed. Not after the fan was seen near
+        zero since the known way's last answer: rest answered (in a doubtful room) or a
+        window read slower than the floor; either way it may have passed zero, and the
+        answers after it may be the other way (spent held-out 5400006 and 5400008: each
+        held a reversal as sudden for 8-11 s so)."""
         if cand is not None or self.known not in WAY_KINDS:
             return
         if d.turning and d.doubtful_room and _rate(d) >= self._visible_hz:
-            if self._kept_its_way(t_s, _rate(d)):
+            if not self._rest_since_known and self._kept_its_way(t_s, _rate(d)):
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen
                 self._note_seen(t_s, d)
         elif self._chain is not None and _rate(d) >= self._visible_hz \
-                and abs(_rate(d) - self._chain[1]) <= CHAIN_AGREE * self._chain[1]:
+                and abs(_rate(d) - self._chain[1]) <= CHAIN_AGREE * self._chain[1] \
+                and not self._read_slow_since_chain():
             self._chain = (float(t_s), _rate(d))
             self._note_seen(t_s, d)
 
@@ -839,7 +844,13 @@ class Transitions:
         up), extrapolated; such answers that no longer fall (the fan held or regained its
         speed) forget it. Slower answers change nothing: there the track lags and
         flattens; nor do answers the other way before that way is confirmed (a sign that
-        the fan may be reversing, not a reason to forget its slowing)."""
+        the fan may be reversing, not a reason to forget its slowing). But answers of the
+        line's way that have followed the fan without a break (``followed_s``) later
+        than a stop at its zero would have been due and seen (``reversal_guard_s`` and
+        ``meter_lag_s`` after it) refute it: the fan settled at a slow speed instead
+        (spent held-out 5400014: a line from a slowing to 0.113 Hz kept its zero of 70 s
+        before, so a slow reversal through zero was not waited for, and was a stop and
+        a start)."""
         if kind not in TURNING_KINDS or d.rate_hz is None or not math.isfinite(d.rate_hz):
             return
         if self.known in WAY_KINDS and kind != self.known:
@@ -858,6 +869,10 @@ class Transitions:
                 self._zero_by = t + rate / -slope
             else:
                 self._zero_by = None
+        elif self._zero_by is not None and t - self._run_from >= self.settings.followed_s \
+                and t > self._zero_by + self.settings.reversal_guard_s \
+                + self.settings.meter_lag_s:
+            self._zero_by = None
 
     def _line_zero(self, t_s: float) -> float | None:
         """When the slowing line reaches zero, if that can explain a fan at rest by
