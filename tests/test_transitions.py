@@ -619,9 +619,11 @@ def test_a_run_the_other_way_after_the_fan_read_slow_is_judged_afresh(between_hz
     51 pulses (1.5 s) without a direction reading ``between_hz``, then the other way at
     0.17 Hz on a line never shown to beat its mirror. Read under the floor (0.05 Hz),
     the fan was near zero: the new run is judged afresh, no longer sudden (3.2 s after
-    0.21 Hz against 0.5 x 1.27 s), and the reversal fires at its 17th pulse (155 + 16).
-    Read at the old speed the whole time, the new run is still the mirror image and is
-    held. (Seen: spent scene 2300001's reversal held 5.9 s, until its line's check.)"""
+    0.21 Hz against 0.5 x 1.27 s), and the reversal fires, its count long met, once the
+    short meter's window (1.5 s, 51 pulses) has passed since the fan last read slow
+    (pulse 154 + 51): the fan may have come to rest there, unseen till then. Read at the
+    old speed the whole time, the new run is still the mirror image and is held. (Seen:
+    spent scene 2300001's reversal held 5.9 s, until its line's check.)"""
     tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.3), 34.0)
     between = Decision(Direction.UNKNOWN, None, None, between_hz, None, 0.4, "weak evidence")
     seq = [_d("same", 0.21)] * 100 + [_d("reversed", 0.14, checked=False)] * 4 \
@@ -629,7 +631,7 @@ def test_a_run_the_other_way_after_the_fan_read_slow_is_judged_afresh(between_hz
     fired = []
     for i, d in enumerate(seq):
         fired += [(e.kind, e.pulse) for e in tr.step(i / 34.0, i, d)[1]]
-    assert fired == ([("reversed", 171)] if fires else [])
+    assert fired == ([("reversed", 154 + 51)] if fires else [])
 
 
 def test_the_old_direction_is_bounded_by_rest_and_by_how_fast_a_fan_speeds_up():
@@ -678,8 +680,8 @@ def test_a_followed_run_after_rest_is_bounded_by_how_fast_a_fan_speeds_up():
     # 5.7 s on at 0.15 Hz/s: possible from 5.0 + 0.1 / 0.3 = 5.33 s, but the fan was
     # read slower than the floor until 5.3 s (the windows within 0.05 / 0.15 s of zero),
     # and a fan that came to rest there would read as motion on the short meter until
-    # 5.3 + meter_lag_s (1.3 s) = 6.6 s: it fires then, its count long met
-    ({j: ("reversed", 0.1 + 0.15 * 0.1 * (j - 12)) for j in range(12, 40)}, 6.6),
+    # 5.3 + still_window_s (1.5 s) = 6.8 s: it fires then, its count long met
+    ({j: ("reversed", 0.1 + 0.15 * 0.1 * (j - 12)) for j in range(12, 40)}, 6.8),
 ])
 def test_a_reversal_is_timed_from_the_zero_of_the_slowing_line(other, first):
     """Closed form, 10 answers/s, 0.3 Hz/s: 'same' slowing from 0.4 Hz at 1 s at 0.1 Hz/s
@@ -742,9 +744,9 @@ def test_a_new_direction_waits_for_the_meter_to_see_a_fan_read_near_zero_come_to
     slower than the floor until 6.5 s, then the other way at 0.13 Hz for 0.8 s (the
     tracks a spin-down's end leaves, spent held-out 4100011, twice: a fan 3.5 m away at
     30 dB creeping to rest reads as motion on the short meter for about 1.1 s after it
-    stops), then at rest. The other way is not taken before 6.5 + meter_lag_s (1.3 s)
-    = 7.8 s, by which time rest is answered: only the stop fires. (Before, its count met
-    at 7.1 s, a false 'reversed' came 0.8 s before the stop.)"""
+    stops), then at rest. The other way is not taken before 6.5 + still_window_s
+    (1.5 s) = 8.0 s, by which time rest is answered: only the stop fires. (Before, its
+    count met at 7.1 s, a false 'reversed' came 0.8 s before the stop.)"""
     tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=0.75), 10.0)
     seq = [_d("same", 0.2)] * 20 + [_d("same", 0.2 - 0.05 * 0.1 * j) for j in range(31)] \
         + [_d("unknown", 0.04 - 0.0027 * j) for j in range(15)] \
@@ -1640,8 +1642,8 @@ def test_a_new_lock_of_the_old_way_after_zero_does_not_make_a_reversal_sudden(wa
     way that has not lasted ``followed_s`` (1 s) is a new lock on a fan that may be
     reversing, so the other way is judged against 0.054 Hz 1.2 s before (through zero a
     fan needs (0.054 + 0.105) / 0.3 = 0.53 s), and it waits for the short meter to have
-    seen a fan that crept to rest after the last slow window (``meter_lag_s``, 1.3 s =
-    44.2 answers after it, 21 before the other way's first): a reversal at its 25th
+    seen a fan that crept to rest after the last slow window (``still_window_s``, 1.5 s
+    = 51 answers after it, 21 before the other way's first): a reversal at its 31st
     answer. Judged against the lock, it came at once and was held as the mirror image
     until its line was checked (4 s in the scene). A lock of the old way followed for
     1.2 s does vouch for it: then the other way at once is sudden, and held."""
@@ -1655,9 +1657,10 @@ def test_a_new_lock_of_the_old_way_after_zero_does_not_make_a_reversal_sudden(wa
                      "turning slower than the floor")] * 20
     lost = [Decision(Direction.UNKNOWN, None, None, None, None, 0.0, "no match")] * 10
     other = [_d("reversed", 0.105 + 0.085 * i / 34, checked=False) for i in range(100)]
-    start = len(down) + 20 + 10 + 10
+    start, last_slow = len(down) + 20 + 10 + 10, len(down) + 19
     fired, published, tr = _walk(down + slow + lost + [_d("same", 0.14)] * 10 + other)
-    assert fired == [("reversed", start + 24)] and tr.known == Kind.REVERSED
+    assert [k for k, _ in fired] == ["reversed"] and tr.known == Kind.REVERSED
+    assert last_slow + 51 <= fired[0][1] <= last_slow + 52     # (1.5 s, to the pulse)
     fired, published, _ = _walk(down + slow + lost + [_d("same", 0.14)] * 40 + other)
     assert fired == [] and set(published[start + 30:]) == {"unknown"}
 

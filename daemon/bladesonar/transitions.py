@@ -77,6 +77,9 @@ class TransitionSettings:
     #: fan spins up over at most about 8 s to 0.4 Hz, so a fan left to coast is not
     #: waited for at its own slope on the way back
     min_spinup_hz_s: float = 0.05
+    #: the short meter's window (s, tuning.STILL_WINDOW_S): a fan that crept to rest reads
+    #: as motion until the window holds nothing but the rest
+    still_window_s: float = 1.5
     #: the fastest a fan goes from one direction through zero to the other (Hz/s): twice
     #: the steepest ramp followed (tracking.max_ramp_hz_s); 0: no such wait
     max_reversal_hz_s: float = 0.3
@@ -795,8 +798,10 @@ class Transitions:
         after a stretch at rest join the line of those before it, and put its zero
         seconds off, and a lagging line puts it late. A window
         that read the fan slower than the floor after the known way's last answer puts
-        the other way no sooner than :meth:`_rest_unseen_until`: the tracks a
-        spin-down's end leaves can claim the other way before the meter sees the rest."""
+        the other way no sooner than :meth:`_rest_unseen_until`, however long the other
+        way has been answered (that wait ends by itself, a meter's window after the slow
+        reading): the tracks a spin-down's end leaves can claim the other way before the
+        meter sees the rest."""
         st = self.settings
         if self.known not in WAY_KINDS or self._known_seen is None \
                 or not st.max_reversal_hz_s > 0:
@@ -806,8 +811,8 @@ class Transitions:
         if self._line_zero_times(t_s):
             assert self._zero_by is not None    # (the line has one)
             soonest = max(soonest, self._zero_by + rate / st.max_reversal_hz_s)
-        soonest = max(soonest, self._rest_unseen_until())
-        return min(soonest, self._cand_t + st.reversal_hold_s)
+        soonest = min(soonest, self._cand_t + st.reversal_hold_s)
+        return max(soonest, self._rest_unseen_until())
 
     def _line_zero_times(self, t_s: float) -> bool:
         """Whether the known way's slowing line puts the fan at zero no sooner than its
@@ -832,11 +837,13 @@ class Transitions:
     def _rest_unseen_until(self) -> float:
         """Until when a fan read slower than the floor after the known way's last answer
         may have come to rest unseen: the short meter reads a fan creeping to rest as
-        motion until its window has seen the rest (``meter_lag_s``); -inf if no window
-        read it so."""
+        motion until its window holds nothing but the rest (``still_window_s``); -inf if
+        no window read it so. (Spent held-out 5500020: a lock on a fan come to rest claimed
+        the other way, speeding up to 0.22 Hz, while the meter read 4-14 for 1.4 s after
+        the fan read slow; it fell under the threshold 1.5 s after.)"""
         if self._known_seen is None or not self._read_slow_t > self._known_seen[0]:
             return -math.inf
-        return self._read_slow_t + self.settings.meter_lag_s
+        return self._read_slow_t + self.settings.still_window_s
 
     def _watch_slowing(self, t_s: float, d: Decision, kind: Kind | None) -> None:
         """Remember when a fan seen slowing down steadily would reach zero: the line of

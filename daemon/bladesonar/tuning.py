@@ -166,5 +166,6 @@ def transition_settings(cfg: Config) -> TransitionSettings:
     t = cfg.tracking
     return TransitionSettings(rate_floor_hz=t.rate_floor_hz, confirm_s=t.confirm_s,
                               max_reversal_hz_s=t.max_reversal_hz_s,
-                              blind_turn_rev=0.5 / cfg.scene.blades)
+                              blind_turn_rev=0.5 / cfg.scene.blades,
+                              still_window_s=STILL_WINDOW_S)
 
