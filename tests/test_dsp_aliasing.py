@@ -339,6 +339,22 @@ def test_the_mirror_evidence_of_six_batch_means_is_read_on_the_normal_scale():
     assert aliasing.mirror_evidence(aliasing.distances(f, fine), p % 1.0, fine).dof == 5
 
 
+def _scripted_watch(rate: float, n: int) -> tuple[np.ndarray, aliasing.AliasWatch, Any]:
+    """The pulses' distances to the fine table of a pattern that shows every angle, for
+    a fan at ``rate`` blade periods per pulse over ``n`` pulses, a fresh alias watch and
+    a real Tracker locked at pulse 0 whose line the test sets (scripted, as in
+    ``_watch_on``)."""
+    from bladesonar.dsp.tracking import Tracker, TrackerSettings
+    table = _table(visible=None)
+    _, f = _pulses(table, rate, n=n)
+    fine = aliasing.fine_table(table)
+    watch = aliasing.AliasWatch(fine, 170, 0.03, min_rate=0.003)
+    tr = Tracker(TrackerSettings(max_rate=0.45))
+    tr.start_k = tr.locked_k = 0
+    tr.P = np.diag([1e-4, 1e-8])
+    return aliasing.distances(f, fine), watch, tr
+
+
 def test_a_winner_moves_the_track_only_once_each_angle_was_seen_enough():
     """A track locked on the alias 5/12 of 1/12 blade period per pulse (the pulses see
     the same 12 angles), the true line clearly better from the first check on: the watch moves
@@ -346,16 +362,8 @@ def test_a_winner_moves_the_track_only_once_each_angle_was_seen_enough():
     angle ``SEEN_EACH`` times (48 pulses: a start at 1/12 in a random room was moved to
     its mirror on 41, where one check's winner had swung to the wrong line). The track is
     scripted (a real Tracker whose line is set), as in ``_watch_on``."""
-    from bladesonar.dsp.tracking import Tracker, TrackerSettings
-    table = _table(visible=None)
     rate, n = 1 / 12, 120
-    k, f = _pulses(table, rate, n=n)
-    fine = aliasing.fine_table(table)
-    dist = aliasing.distances(f, fine)
-    watch = aliasing.AliasWatch(fine, 170, 0.03, min_rate=0.003)
-    tr = Tracker(TrackerSettings(max_rate=0.45))
-    tr.start_k = tr.locked_k = 0
-    tr.P = np.diag([1e-4, 1e-8])
+    dist, watch, tr = _scripted_watch(rate, n)
     moved_at = None
     for i in range(n):
         if tr.relocks == 0:
@@ -385,16 +393,8 @@ def test_a_track_standing_while_the_fan_moves_is_checked_though_a_ramp_verified_
     true line (the table here shows every angle, so the line fit can tell). With the fan
     not seen to move, the standing track is left alone. The track is scripted (a real
     Tracker whose line is set), as in ``_watch_on``."""
-    from bladesonar.dsp.tracking import Tracker, TrackerSettings
-    table = _table(visible=None)
     rate, n = 1 / 7, 170
-    k, f = _pulses(table, rate, n=n)
-    fine = aliasing.fine_table(table)
-    dist = aliasing.distances(f, fine)
-    watch = aliasing.AliasWatch(fine, 170, 0.03, min_rate=0.003)
-    tr = Tracker(TrackerSettings(max_rate=0.45))
-    tr.start_k = tr.locked_k = 0
-    tr.P = np.diag([1e-4, 1e-8])
+    dist, watch, tr = _scripted_watch(rate, n)
     tr.x = np.array([0.5, 0.0])
     tr.last_k = 0
     watch.verified = tr.identity                # (as a ramp verifies it)
