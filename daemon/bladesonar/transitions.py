@@ -69,7 +69,8 @@ class TransitionSettings:
     reversal_guard_s: float = 3.0
     #: the lag of the meter and the track in seeing a reversed fan (s): a track needs its
     #: 24 matches, 0.7 s, once the blade is in view again, and 0.5 s to confirm; and of
-    #: the short meter in seeing a fan that crept to rest (0.9-1.2 s of its 1.5 s window)
+    #: the short meter in seeing a fan that crept to rest (0.9-1.2 s of its 1.5 s window;
+    #: a new direction after a slow reading waits the whole window, ``still_window_s``)
     meter_lag_s: float = 1.3
     #: answers over this span (s) give the slowing fan's rate of change
     slope_span_s: float = 2.0
