@@ -523,6 +523,10 @@ class PulseAnalyzer:
     motion_fed: float = float("nan")
     decided: Decision | None = None               # the last decision (before the machine)
     _quiet: bool = False                          # the last decision's short meter was quiet
+    #: (track, pulse) of the last decision whose short meter read motion while a track was
+    #: locked: a quiet reading within the meter's window after it, on the same track, is
+    #: the track's rate recurring at one of the meter's lags, not a rest
+    _meter_moved: tuple[Any, int] | None = None
     _rest_moved: bool = False                     # the fan moved since the rest's hold began
     bursts: dev.BurstGate = field(default_factory=dev.BurstGate)   # pulses skipped: .bursts
     #: the locked track's unwrapped phase over the last window, (pulse, cycles), and the
@@ -1189,6 +1193,18 @@ class PulseAnalyzer:
         # the short meter sees no change beyond noise: the fan may be coming to rest, and
         # a track coasting on is no direction to check against its mirror
         self._quiet = still < self._decide_settings.still_threshold
+        # a track the short meter saw moving moments ago: a quiet reading now is its rate
+        # recurring at one of the meter's lags (the meter reads the least change over its
+        # lags), not the fan stopped; where the rate recurs a quiet meter outweighs a
+        # track only after a window of quiet (spent held-out 5700013: a steady 1.44 Hz fan
+        # at 1/6 blade period per pulse read 1.0 for 0.6 s between readings of 3-500, and
+        # was published stopped and started again)
+        last_k = tr.last_k
+        if locked and last_k is not None and not self._quiet:
+            self._meter_moved = (tr.identity, last_k)
+        moved = self._meter_moved
+        recurring_seen = locked and last_k is not None and moved is not None \
+            and moved[0] == tr.identity and last_k - moved[1] <= self.still.window
         # a fan seen at rest: its static estimate held, or its rest confirmed (a rest that
         # comes more than SNAPSHOTS after the fan last turned briskly finds no copy of
         # the estimate to hold, and there a lock on the resting blade at 0.11 Hz, the
@@ -1199,7 +1215,8 @@ class PulseAnalyzer:
         args = dict(still=still, accel=accel * prf,
                     changing_odds=self.tracker.follower_weight,
                     at_rest=at_rest, seen_still=self._seen_still(),
-                    still_lags=self.still.max_lag, rate=rate, rate_std=sd, locked=locked,
+                    still_lags=0 if recurring_seen else self.still.max_lag, rate=rate,
+                    rate_std=sd, locked=locked,
                     accepted=accepted,
                     # (numpy's mean is this sum over the count, at twice the cost)
                     quality=float(qual.sum()) / len(qual) if len(qual) else 0.0,
