@@ -522,15 +522,20 @@ class AliasWatch:
             self._act(tr, v, int(k[-1]), span < SEEN_EACH * v.frac.denominator)
 
     def _stands_while_moving(self, tr: Tracker, moving: Callable[[], bool]) -> bool:
-        """Whether the track stands (its line sweeps less than ``MIRROR_MIN_SWEEP`` over
-        half a window) while the long meter sees the fan move: a ramp does not vouch for
+        """Whether the track stands (:meth:`_stands`) while the long meter sees the fan
+        move: a ramp does not vouch for
         such a track. Where the table is clear at one angle only, the clear matches come
         once a blade period, and a fan turning near q pulses a period strobes them into a
         line near zero that follows the fan's ramp as an alias does (spent held-out
         5500017: a start to 0.68 Hz at 7.3 pulses a period was tracked standing for
         165 s, verified by the ramp, never checked against its aliases)."""
-        w, _ = tr.track_rate            # (locked)
-        return abs(w) * (self.window // 2) < MIRROR_MIN_SWEEP and moving()
+        return self._stands(tr.track_rate[0]) and moving()
+
+    def _stands(self, rate: float) -> bool:
+        """Whether a line at ``rate`` (cycles per pulse) sweeps less than
+        ``MIRROR_MIN_SWEEP`` over half a window: near zero a line and its mirror, or its
+        aliases, are nearly the same line."""
+        return abs(rate) * (self.window // 2) < MIRROR_MIN_SWEEP
 
     def _window_of(self, tr: Tracker) -> tuple[np.ndarray, np.ndarray]:
         """Ring indices and pulse numbers of the window's pulses since the track began."""
@@ -558,7 +563,7 @@ class AliasWatch:
         if new < (self._every if confirmed else 8):
             return False
         w, _ = tr.track_rate            # (locked)
-        if abs(w) * (self.window // 2) < MIRROR_MIN_SWEEP:
+        if self._stands(w):
             return self._no_verdict()     # the track stands (near zero): nothing to tell
         idx, k = self._window_of(tr)
         path = self._phase[idx]
