@@ -11,10 +11,12 @@ from types import ModuleType
 import numpy as np
 
 from bladesonar import config
+from bladesonar.live import capture_pulses
 from bladesonar.reference_build import Reference, build_reference
 from bladesonar.sim import random_scene
 from bladesonar.sim.render import Simulator, simulate
 from bladesonar.sim.schedule import Schedule, parse
+from bladesonar.sim.score import true_time
 
 
 def learned(dr: random_scene.SceneDraw, cfg: config.Config, seed: int) -> Reference:
@@ -61,3 +63,23 @@ def days_module() -> ModuleType:
     sys.modules.setdefault("days", mod)
     spec.loader.exec_module(mod)
     return mod
+
+
+def streamed_day(seed: int, until_s: float, hours: float = 0.4
+                 ) -> tuple[Schedule, list[tuple[float, str]], list[tuple[float, str]]]:
+    """Random room ``seed``'s day as tools/bench_day streams it (:func:`days_module`),
+    through the daemon's pipeline to ``until_s``: its schedule, the events and the
+    published directions, each at the schedule's (true) time."""
+    cfg, sch, sim, live, dr = days_module().random_day(hours, seed)
+    fs = cfg.audio.sample_rate
+    events: list[tuple[float, str]] = []
+    states: list[tuple[float, str]] = []
+    for pos, x in capture_pulses((xs for xs, _ in sim.chunks(hours * 3600.0)), live.pri):
+        if pos / fs > until_s:
+            break
+        est = live.push(x, pos - live.pri)
+        t = true_time(pos / fs, dr.drift_ppm)
+        events += [(t, e.kind.value) for e in live.take_events()]
+        if est is not None:
+            states.append((t, est.direction.value))
+    return sch, events, states

@@ -15,9 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bladesonar.live import capture_pulses
-from bladesonar.sim.score import true_time
-from scene_runs import days_module
+from scene_runs import streamed_day
 
 pytestmark = pytest.mark.slow   # 640 s of the day streamed, about 45 s of CPU
 
@@ -26,15 +24,7 @@ UNTIL_S = 640.0
 
 
 def test_a_rest_with_no_held_estimate_is_not_left_for_a_lock_on_the_resting_blade():
-    cfg, sch, sim, live, dr = days_module().random_day(0.4, SEED)
-    fs = cfg.audio.sample_rate
-    events = []
-    for pos, x in capture_pulses((xs for xs, _ in sim.chunks(0.4 * 3600.0)), live.pri):
-        if pos / fs > UNTIL_S:
-            break
-        live.push(x, pos - live.pri)
-        events += [(true_time(pos / fs, dr.drift_ppm), e.kind.value)
-                   for e in live.take_events()]
+    sch, events, _ = streamed_day(SEED, UNTIL_S)
     # the truth: the fan comes to rest at about 613.4 s and stays there to UNTIL_S
     t = np.arange(600.0, UNTIL_S, 0.01)
     rate = np.abs(sch.rate_at(t))
