@@ -412,3 +412,35 @@ def test_a_track_standing_while_the_fan_moves_is_checked_though_a_ramp_verified_
         assert watch.moves == 1 and float(tr.x[1]) == pytest.approx(rate, abs=1e-6)
     else:
         assert watch.moves == 0 and float(tr.x[1]) == 0.0
+
+
+@pytest.mark.parametrize("on_alias", [True, False])
+def test_a_verified_track_half_a_blade_period_per_pulse_off_is_moved_back(on_alias):
+    """The fan turns at 0.29 blade period per pulse, near no p/q; a ramp through 1/4 left
+    the track on the line half a blade period per pulse away (0.29 - 1/2 = -0.21: the
+    other way) and verified it (spent held-out 5900018: the wrong way published for 10 s,
+    then 24 s unknown). The watch looks again at lines a half, a third and a quarter
+    of a blade period per pulse away, and moves the track to the one that fits
+    (``AliasWatch._check_shifts``); a track on the true line stays there. The track is
+    scripted (a real Tracker whose line is set), as in ``_watch_on``."""
+    rate, n = 0.29, 170
+    dist, watch, tr = _scripted_watch(rate, n)
+    line = rate - 0.5 if on_alias else rate
+    tr.x = np.array([0.5, line])
+    tr.last_k = 0
+    watch.verified = tr.identity                # (as a ramp verifies it)
+    moved_at = None
+    for i in range(n):
+        assert tr.x is not None and tr.last_k is not None
+        tr.x = np.array([(tr.x[0] + tr.x[1] * (i - tr.last_k)) % 1.0, tr.x[1]])
+        if tr.relocks and moved_at is None:
+            moved_at = i
+        tr.last_k = i
+        watch.push(i, dist[i], float(tr.x[0]))
+        watch.check(tr, accel=0.0, moving=lambda: True, resting=True)
+    assert tr.x is not None
+    if on_alias:
+        assert watch.moves == 1 and float(tr.x[1]) == pytest.approx(rate, abs=1e-6)
+        assert moved_at is not None and moved_at <= 170 // 2 + 2 * 8 + 1, moved_at
+    else:
+        assert watch.moves == 0 and float(tr.x[1]) == rate
