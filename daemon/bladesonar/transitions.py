@@ -396,6 +396,15 @@ class Transitions:
             self._carry_from = None
             return d
         self._carry_seen, self._carry_line = t, line
+        if self._mirror_held and not self._below_floor(t, self.known):
+            # published as the known way turning at its speed: the fan was seen turning
+            # (spent held-out 6000020: a slow reversal's last windows before zero were
+            # mirror images carried as the old way; the wait for the reversal, capped
+            # from the old way's last answer before them, ended 0.1 s before the fan
+            # showed the new way, and a stop and a start were published); not once the
+            # slowing line is below the floor: a lock on a fan come to rest would hold
+            # its stop (as answers of the old way do, :meth:`_note_last_turning`)
+            self._last_turning, self._last_turning_hz = t, rate
         if same_line and rate > answered:
             self._carry_from = rate
             self._carry_answers.clear()     # (the band rides the line up, all of it)
@@ -577,9 +586,10 @@ class Transitions:
 
     def _note_last_turning(self, t_s: float, d: Decision, cand: Kind | None) -> None:
         """When the fan was last seen turning, which caps the wait for a reversal: only
-        the known direction renews it (or any way where none is known), and once the
-        slowing line is below the floor, a new run of it only after ``followed_s``;
-        answers that followed the fan down do renew it."""
+        the known direction renews it (or any way where none is known; :meth:`carry`
+        renews it with the windows the mirror hold publishes as the known way), and
+        once the slowing line is below the floor, a new run of it only after
+        ``followed_s``; answers that followed the fan down do renew it."""
         if cand in TURNING_KINDS and (cand == self.known or self.known not in WAY_KINDS):
             if not (self._below_floor(t_s, cand)
                     and t_s - self._run_from < self.settings.followed_s):
@@ -899,8 +909,9 @@ class Transitions:
         ``reversal_guard_s`` after the fan was last seen turning (a stop is due within
         3 s of rest, and the slope is an estimate), and not at all for a line that
         reaches zero more than ``reversal_guard_s`` from now. The fan was last seen
-        turning when the known direction was last answered: answers the other way not
-        yet confirmed neither end the wait nor renew its cap, and nor does a new run of
+        turning when the known direction was last answered, or last published by the
+        mirror hold: other answers the other way not yet confirmed neither end the wait
+        nor renew its cap, and nor does a new run of
         the known direction once the line is below the floor, until it has lasted
         ``followed_s`` (:meth:`step`).
 
