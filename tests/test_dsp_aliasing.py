@@ -383,6 +383,23 @@ def test_a_winner_moves_the_track_only_once_each_angle_was_seen_enough():
     assert 48 <= moved_at <= 48 + 24, moved_at     # (unbounded, it moved on pulse 18)
 
 
+def _follow_line(watch: aliasing.AliasWatch, tr: Any, dist: np.ndarray, n: int, *,
+                 moving: bool) -> int | None:
+    """Pulses 0..n-1 to a scripted track that follows its line (``tr.x``, as the watch
+    last set it) and to the watch after each; the pulse at which the watch first moved
+    the track (None: never)."""
+    moved_at = None
+    for i in range(n):
+        assert tr.x is not None and tr.last_k is not None
+        tr.x = np.array([(tr.x[0] + tr.x[1] * (i - tr.last_k)) % 1.0, tr.x[1]])
+        if tr.relocks and moved_at is None:
+            moved_at = i
+        tr.last_k = i
+        watch.push(i, dist[i], float(tr.x[0]))
+        watch.check(tr, accel=0.0, moving=lambda: moving, resting=True)
+    return moved_at
+
+
 @pytest.mark.parametrize("moving", [True, False])
 def test_a_track_standing_while_the_fan_moves_is_checked_though_a_ramp_verified_it(moving):
     """The fan turns at 1/7 blade period per pulse; the track stands at zero on the line
@@ -398,15 +415,7 @@ def test_a_track_standing_while_the_fan_moves_is_checked_though_a_ramp_verified_
     tr.x = np.array([0.5, 0.0])
     tr.last_k = 0
     watch.verified = tr.identity                # (as a ramp verifies it)
-    for i in range(n):
-        if tr.relocks == 0:
-            tr.x = np.array([0.5, 0.0])                                # standing
-        else:
-            assert tr.x is not None and tr.last_k is not None
-            tr.x = np.array([(tr.x[0] + tr.x[1] * (i - tr.last_k)) % 1.0, tr.x[1]])
-        tr.last_k = i
-        watch.push(i, dist[i], float(tr.x[0]))
-        watch.check(tr, accel=0.0, moving=lambda: moving, resting=True)
+    _follow_line(watch, tr, dist, n, moving=moving)     # (standing until moved)
     assert tr.x is not None
     if moving:
         assert watch.moves == 1 and float(tr.x[1]) == pytest.approx(rate, abs=1e-6)
@@ -429,15 +438,7 @@ def test_a_verified_track_half_a_blade_period_per_pulse_off_is_moved_back(on_ali
     tr.x = np.array([0.5, line])
     tr.last_k = 0
     watch.verified = tr.identity                # (as a ramp verifies it)
-    moved_at = None
-    for i in range(n):
-        assert tr.x is not None and tr.last_k is not None
-        tr.x = np.array([(tr.x[0] + tr.x[1] * (i - tr.last_k)) % 1.0, tr.x[1]])
-        if tr.relocks and moved_at is None:
-            moved_at = i
-        tr.last_k = i
-        watch.push(i, dist[i], float(tr.x[0]))
-        watch.check(tr, accel=0.0, moving=lambda: True, resting=True)
+    moved_at = _follow_line(watch, tr, dist, n, moving=True)
     assert tr.x is not None
     if on_alias:
         assert watch.moves == 1 and float(tr.x[1]) == pytest.approx(rate, abs=1e-6)
