@@ -65,12 +65,14 @@ def days_module() -> ModuleType:
     return mod
 
 
-def streamed_day(seed: int, until_s: float, hours: float = 0.4
+def streamed_day(seed: int, until_s: float, hours: float = 0.4, block_pulses: int = 1
                  ) -> tuple[Schedule, list[tuple[float, str]], list[tuple[float, str]]]:
     """Random room ``seed``'s day as tools/bench_day streams it (:func:`days_module`),
     through the daemon's pipeline to ``until_s``: its schedule, the events and the
-    published directions, each at the schedule's (true) time."""
-    cfg, sch, sim, live, dr = days_module().random_day(hours, seed)
+    published directions, each at the schedule's (true) time. ``block_pulses``: the
+    daemon's blocks (8 as configured: the same states and events, tests/test_live.py,
+    in less time; a state is then published per block)."""
+    cfg, sch, sim, live, dr = days_module().random_day(hours, seed, block_pulses)
     fs = cfg.audio.sample_rate
     events: list[tuple[float, str]] = []
     states: list[tuple[float, str]] = []
