@@ -269,12 +269,17 @@ def shifted_path_costs(dist: np.ndarray, path: np.ndarray, k: np.ndarray,
     kk = np.asarray(k, dtype=np.float64) - float(k[-1])
     M = len(fine[0])
     sh = np.asarray(shifts, dtype=np.float64)
-    # (all the paths at once: pulse k of path i at fine phase s[i, k] + j, every offset j)
+    win = _doubled_rows(d)
+    n = max(len(d), 1)
+    # (pulse k of path i at fine phase s[i, k] + j, the offset j fitted as line_costs does)
     s = np.mod(np.round((p[None, :] + sh[:, None] * kk[None, :]) * M).astype(np.int64), M)
-    c = _doubled_rows(d)[np.arange(len(d))[None, :], s].sum(axis=1)     # (paths, M + 1)
-    j = np.argmin(c, axis=1)
-    cost = c[np.arange(len(sh)), j] / max(len(d), 1)
-    return cost, np.mod(float(p[-1]) + j / M, 1.0)
+    cost = np.empty(len(sh))
+    phase = np.empty(len(sh))
+    for i in range(len(sh)):
+        j, c = _best_offset(win, s[i])
+        cost[i] = c / n
+        phase[i] = (float(p[-1]) + j / M) % 1.0
+    return cost, phase
 
 
 class MirrorEvidence(NamedTuple):
@@ -613,15 +618,22 @@ class AliasWatch:
             return False
         self._shift_to = math.nan
         r0 = self.ref_cycles_per_pulse
-        tr.relock(to, float(phase[b]), int(k[-1]))
-        self._rate = to
-        self.moves += 1
-        self.last_move = (rate / r0, to / r0, int(k[-1]))
+        self._move(tr, rate, to, float(phase[b]), int(k[-1]))
         self.note = (f"the track was on the alias {rate / r0:+.3f} (relative rate) of a "
                      f"line {float(sh[b]):+.3g} blade period per pulse away and was moved "
                      f"to {to / r0:+.3f}, whose path fits the reference table better (cost "
                      f"gap {gap:.2f})")
         return False
+
+    def _move(self, tr: Tracker, rate: float, to: float, phase: float, k_last: int
+              ) -> None:
+        """Relock the track from ``rate`` onto the line ``to`` (phase at ``k_last``), and
+        count the move."""
+        r0 = self.ref_cycles_per_pulse
+        tr.relock(to, phase, k_last)
+        self._rate = to
+        self.moves += 1
+        self.last_move = (rate / r0, to / r0, k_last)
 
     def _look_again_soon(self) -> None:
         """The next check in 8 pulses, verified track or not."""
@@ -843,10 +855,7 @@ class AliasWatch:
             return
         self._move_to = float("nan")
         if v.status == "resolved":
-            tr.relock(v.best_rate, v.best_phase, k_last)
-            self._rate = v.best_rate
-            self.moves += 1
-            self.last_move = (v.rate / r0, v.best_rate / r0, k_last)
+            self._move(tr, v.rate, v.best_rate, v.best_phase, k_last)
             self.note = (f"{seen}; the track was on the alias {v.rate / r0:+.3f} "
                          f"(relative rate) and was moved to {v.best_rate / r0:+.3f}, which "
                          f"fits the reference table better (cost gap {v.gap:.2f})")
