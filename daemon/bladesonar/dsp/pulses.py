@@ -162,12 +162,18 @@ class _FractionBias:
         if self._w > 2.0 and det > 1e-9 * self._w * self._w:
             line = (self._aa * self._y - self._a * self._ay) / det
             r = y - line
-            # (a few points' slope is no line to tell a jump from)
-            self._far = self._far + 1 if abs(r) > CLIP_JUMP and self._w > 100.0 else 0
+            b = int(((base + line) % 1.0) * BIAS_BINS) % BIAS_BINS
+            filled = self.n >= BIAS_LEAST
+            left = r - (self.table[b] - self.table[filled].mean() if filled[b] else 0.0)
+            # a jump is told once the line spans its memory, by the error the correction
+            # leaves: a younger line leans along the error itself (over less than a turn
+            # of the position, 353 pulses at 1.8 ppm), its residual passed 0.5 a turn
+            # after each start, and it restarted every turn and never learned
+            far = self._age > BIAS_SETTLE and abs(left) > CLIP_JUMP
+            self._far = self._far + 1 if far else 0
             if self._far >= 2:
                 self._restart()          # samples lost: the line starts again here
                 return m
-            b = int(((base + line) % 1.0) * BIAS_BINS) % BIAS_BINS
             self._age += 1
             if self._age > BIAS_SETTLE:
                 self.n[b] = min(int(self.n[b]) + 1, BIAS_MEMORY)
