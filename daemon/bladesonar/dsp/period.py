@@ -400,7 +400,7 @@ class PhaseFolds:
         t = means[cnt > 0]
         if len(t) < 3:
             return np.inf
-        d = float(((np.roll(t, -1, axis=0) - t) ** 2).sum())
+        d = _step_energy(t)
         e = float(((t - t.mean(axis=0)) ** 2).sum())
         return d / (2.0 * e) if e > 0 else np.inf
 
@@ -417,8 +417,7 @@ class PhaseFolds:
             return math.inf
         got = np.empty(ORDER_NULL_TRIALS)
         for i in range(ORDER_NULL_TRIALS):
-            u = t[rng.permutation(len(t))]
-            got[i] = float(((np.roll(u, -1, axis=0) - u) ** 2).sum()) / (2.0 * e)
+            got[i] = _step_energy(t[rng.permutation(len(t))]) / (2.0 * e)
         return float(got.std())
 
     def repeats_within(self, r: float, m: int, per: int = 16) -> bool:
@@ -433,6 +432,12 @@ class PhaseFolds:
         d = float(((sh - t) ** 2).sum())
         e = float(((t - t.mean(axis=0)) ** 2).sum())
         return e > 0 and d / (2.0 * e) < 0.2
+
+
+def _step_energy(t: np.ndarray) -> float:
+    """Summed squared change between neighbouring rows of ``t`` (the last to the first):
+    :meth:`PhaseFolds.roughness`'s numerator, for a fold's bins in any order."""
+    return float(((np.roll(t, -1, axis=0) - t) ** 2).sum())
 
 
 def _fundamental(candidates: np.ndarray, lines: DopplerLines, folds: PhaseFolds,
@@ -558,7 +563,8 @@ def _more_ordered(r0: float, family: np.ndarray, folds: PhaseFolds) -> float:
     folded) is left out: its fold mixes m stretches of the period and may read the
     smoother (:func:`_slower_harmonic`)."""
     gap = 2.0 / folds.span
-    pick, low = r0, folds.roughness(r0)
+    own = folds.roughness(r0)
+    pick, low = r0, own
     for r in family:
         r = float(r)
         if abs(r - r0) < gap or not r > 0 or any(
@@ -568,7 +574,7 @@ def _more_ordered(r0: float, family: np.ndarray, folds: PhaseFolds) -> float:
         o = folds.roughness(r)
         if o < low:
             pick, low = r, o
-    if pick == r0 or not low < folds.roughness(r0) - ORDER_NULL_SD * folds.order_spread(r0):
+    if pick == r0 or not low < own - ORDER_NULL_SD * folds.order_spread(r0):
         return r0
     return pick
 
