@@ -30,6 +30,7 @@ from .dsp.pulses import (
     WARMUP,
     AlignedPulses,
     PulseAligner,
+    align_recording,
     check_recording,
     count_clipped,
     count_dropped,
@@ -376,8 +377,7 @@ def build_reference(x: np.ndarray, cfg: Config, direction: str = "unknown") -> R
     warnings = check_recording(x, pri=pri, min_pulses=a.min_pulses,
                                max_clip_fraction=a.max_clip_fraction, sample_rate=fs)
     full_gate = Gate(0, max_gate_stop(pri), float(fs), cfg.scene.speed_of_sound)
-    aligner = PulseAligner(pri, full_gate)
-    full = AlignedPulses.concat([aligner.push(x), aligner.flush()], full_gate.length)
+    full, aligner = align_recording(x, pri, full_gate)
     v = full.valid
     if v.sum() < a.min_pulses:
         raise too_few_pulses(int(v.sum()), len(full), len(x), pri=pri, sample_rate=fs,

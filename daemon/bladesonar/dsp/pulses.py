@@ -500,6 +500,9 @@ class PulseAligner:
     _tail: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
     _coarse: bool = False            # the last clipped edge was timed by its plateaus
     _bias: _FractionBias = field(default_factory=_FractionBias, repr=False)
+    coarse_log: list[tuple[int, float]] | None = field(default=None, repr=False)
+    """When a list: (pulse, edge) of every clipped coupling timed from its plateaus'
+    edges, as measured (:func:`align_recording` learns their error from it)."""
 
     def __post_init__(self) -> None:
         if self.pri < 64:
@@ -620,6 +623,9 @@ class PulseAligner:
             self._amp = self.clip_level
             self._on_line = True
             self._next = float(at)
+            if self.coarse_log is not None:
+                # the template itself: timed against itself, on the others' terms
+                self.coarse_log.append((self._count, float(at)))
             return True
         seg = self._polarity * self._seg(at - KERNEL_HALF, at + KERNEL_HALF + 1)
         off, height = refine_peak(seg)
@@ -786,9 +792,11 @@ class PulseAligner:
             if got is not None and abs(got[0] - pred) <= tol:
                 lim = self.pri * self.max_drift_ppm * 1e-6
                 m = got[0]
-                if self._template is not None and self._coarse \
-                        and self._clip_n >= BIAS_START:
-                    m = self._bias.correct(self._count, m, pred, self._period)
+                if self._template is not None and self._coarse:
+                    if self.coarse_log is not None:
+                        self.coarse_log.append((self._count, m))
+                    if self._clip_n >= BIAS_START:
+                        m = self._bias.correct(self._count, m, pred, self._period)
                 err = m - pred
                 if self._template is None and got[2] and not self._on_line:
                     self._line_from_here()
@@ -849,14 +857,30 @@ class PulseAligner:
         self._trim()
         return out
 
+    def recut(self, x: np.ndarray, edges: np.ndarray, index: np.ndarray,
+              status: np.ndarray) -> AlignedPulses:
+        """The pulses of the whole stream ``x`` (as pushed) cut again at ``edges``;
+        pulses not OK keep their status, OK ones are checked again."""
+        buf, off = self._buf, self._offset
+        self._buf, self._offset = x, 0
+        try:
+            return self._cut_arrays(np.asarray(edges, dtype=np.float64),
+                                    np.array(status, dtype=np.int8),
+                                    np.asarray(index, dtype=np.int64))
+        finally:
+            self._buf, self._offset = buf, off
+
     def _cut(self, edges: list[_Edge]) -> AlignedPulses:
+        if not edges:
+            return AlignedPulses.empty(self.gate.length)
+        return self._cut_arrays(np.array([d.edge for d in edges]),
+                                np.array([d.status for d in edges], dtype=np.int8),
+                                np.array([d.index for d in edges], dtype=np.int64))
+
+    def _cut_arrays(self, e: np.ndarray, status: np.ndarray, index: np.ndarray
+                    ) -> AlignedPulses:
         g = self.gate
-        n, L = len(edges), g.length
-        if n == 0:
-            return AlignedPulses.empty(L)
-        e = np.array([d.edge for d in edges])
-        status = np.array([d.status for d in edges], dtype=np.int8)
-        index = np.array([d.index for d in edges], dtype=np.int64)
+        n, L = len(e), g.length
         base = np.floor(e).astype(np.int64)
         frac = e - base
         width = L + 2 * KERNEL_HALF - 1
@@ -970,6 +994,129 @@ def align(x: np.ndarray, pri: int, gate: Gate, **kwargs: Any) -> AlignedPulses:
     """
     a = PulseAligner(pri, gate, **kwargs)
     return AlignedPulses.concat([a.push(x), a.flush()], gate.length)
+
+
+#: The whole-recording fit of the plateau timing's error (:func:`fit_fraction_bias`): a
+#: step between consecutive coarse edges this far (samples) past the PRI's starts a new
+#: line (samples were lost; the aligner itself takes 1.5 for a clipped edge); the fit is
+#: made only where the sub-sample position turns FIT_TURNS times or more over the edges
+#: (with less, the error is nearly one constant: a range offset), over FIT_ROUNDS rounds
+#: of line and table; a table that does not stand FIT_SIGNIFICANCE times over its own
+#: noise is not taken.
+FIT_JUMP = 1.5
+FIT_TURNS = 2.0
+FIT_ROUNDS = 6
+FIT_SIGNIFICANCE = 3.0
+#: Share of the measured edges that must be plateau-timed for the recording to be cut
+#: again at the fitted line (edges timed by the ringing are right as they are, and a
+#: mixed stream's two timings need not share one constant).
+FIT_COARSE_SHARE = 0.9
+
+
+@dataclass(frozen=True)
+class FractionFit:
+    """The plateau timing's error and the edges' line, fitted over a whole recording
+    (:func:`fit_fraction_bias`)."""
+
+    table: np.ndarray
+    """The error at each of BIAS_BINS sub-sample positions (NaN where no edge fell)."""
+    slope: float
+    """Samples per pulse: the PRI in capture samples (one clock, one slope)."""
+    first: np.ndarray
+    """Each stretch's first and last plateau-timed pulse (between lost samples), and its
+    edge at pulse 0 of the stream: the line is ``start + slope * k``."""
+    last: np.ndarray
+    start: np.ndarray
+
+    def edges(self, index: np.ndarray, measured: np.ndarray) -> np.ndarray:
+        """The edges of pulses ``index`` (as ``measured`` by the stream) on the line: the
+        stretch's they fall in, or before or after, whichever passes within FIT_JUMP of
+        the measured edge (a pulse timed otherwise at a stretch's end: the one after
+        samples were lost, timed when the edge was found again); elsewhere as measured."""
+        index = np.asarray(index)
+        measured = np.asarray(measured, dtype=np.float64)
+        top = len(self.last) - 1
+        out = measured.copy()
+        after = np.minimum(np.searchsorted(self.last, index), top)
+        for s in (np.maximum(after - 1, 0), after):   # the later one wins
+            line = self.start[s] + self.slope * index
+            near = np.abs(line - measured) <= FIT_JUMP
+            out = np.where(near, line, out)
+        return out
+
+
+def fit_fraction_bias(k: np.ndarray, m: np.ndarray) -> FractionFit | None:
+    """The error of plateau-timed edges ``m`` (pulses ``k``, in order) as a function of
+    the sub-sample position, and the line the edges lie on, fitted over a whole
+    recording; None when the record cannot tell the error.
+
+    Why: the streaming learner (:class:`_FractionBias`) needs a thousand pulses to trust
+    its line, longer than the 20 s a reference is learned from; until then the edges
+    follow the error. Under clock drift the sub-sample position turns, the gate moves
+    with the error, and the strong static echoes change as a turning fan's would: a
+    held-out room's reference (a coupling 7.4 times full scale, -13.6 ppm) was learned
+    at that turn, 0.0176 blade period per pulse, for a fan at 0.039. The whole record
+    holds the line and the error at once: a line per stretch between lost samples (one
+    clock: one slope) and the error's mean at each position, fitted in turn."""
+    k = np.asarray(k, dtype=np.float64)
+    m = np.asarray(m, dtype=np.float64)
+    if len(k) < 4 * BIAS_BINS:
+        return None
+    pri = float(median(np.diff(m) / np.maximum(np.diff(k), 1.0)))
+    seg = np.concatenate([[0], np.cumsum(np.abs(np.diff(m) - pri * np.diff(k)) > FIT_JUMP)])
+    n_seg = int(seg[-1]) + 1
+    cnt = np.bincount(seg, minlength=n_seg).astype(np.float64)
+    table = np.zeros(BIAS_BINS)
+    b = np.zeros(len(k), dtype=np.int64)
+    filled = np.zeros(BIAS_BINS, dtype=bool)
+    slope, my, mk, r = pri, np.zeros(n_seg), np.zeros(n_seg), np.zeros(len(k))
+    for _ in range(FIT_ROUNDS):
+        y = m - table[b]
+        mk = np.bincount(seg, k, n_seg) / cnt
+        my = np.bincount(seg, y, n_seg) / cnt
+        kc = k - mk[seg]
+        den = float(kc @ kc)
+        if not den > 0.0:
+            return None
+        slope = float(kc @ (y - my[seg])) / den
+        line = my[seg] + slope * kc
+        b = (np.floor((line % 1.0) * BIAS_BINS).astype(np.int64)) % BIAS_BINS
+        r = m - line
+        n = np.bincount(b, minlength=BIAS_BINS)
+        filled = n >= BIAS_LEAST
+        table = np.where(filled, np.bincount(b, r, BIAS_BINS) / np.maximum(n, 1), 0.0)
+        table[filled] -= table[filled].mean()
+    cyc = slope % 1.0
+    turns = min(cyc, 1.0 - cyc) * float(k[-1] - k[0])
+    n = np.bincount(b, minlength=BIAS_BINS)
+    noise = float(np.sqrt(np.mean((r - table[b]) ** 2) / max(float(n[filled].mean()), 1.0)))
+    size = float(np.sqrt(np.mean(table[filled] ** 2)))
+    if turns < FIT_TURNS or not size > FIT_SIGNIFICANCE * noise:
+        return None
+    ends = np.nonzero(np.diff(seg))[0]
+    first = k[np.concatenate([[0], ends + 1])].astype(np.int64)
+    last = k[np.concatenate([ends, [len(k) - 1]])].astype(np.int64)
+    return FractionFit(np.where(filled, table, np.nan), slope, first, last, my - slope * mk)
+
+
+def align_recording(x: np.ndarray, pri: int, gate: Gate, **kwargs: Any
+                    ) -> tuple[AlignedPulses, PulseAligner]:
+    """A whole recording aligned (:func:`align`), and the aligner that did it. Where the
+    coupling was clipped and nearly every edge timed from its plateaus, the pulses are
+    cut again at the line fitted through those edges with their error taken out
+    (:func:`fit_fraction_bias`): one clock, so over a recording of some seconds the
+    line is the schedule itself."""
+    log: list[tuple[int, float]] = []
+    a = PulseAligner(pri, gate, coarse_log=log, **kwargs)
+    out = AlignedPulses.concat([a.push(x), a.flush()], gate.length)
+    if len(log) < FIT_COARSE_SHARE * max(a.edges_measured, 1):
+        return out, a
+    k, m = np.array(log).T
+    fit = fit_fraction_bias(k, m)
+    if fit is None:
+        return out, a
+    edges = fit.edges(out.index, out.edges)
+    return a.recut(np.asarray(x, dtype=np.float64), edges, out.index, out.status), a
 
 
 def min_recording_s(pri: int, sample_rate: float, min_pulses: int) -> float:
