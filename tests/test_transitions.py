@@ -757,6 +757,28 @@ def test_a_new_direction_waits_for_the_meter_to_see_a_fan_read_near_zero_come_to
     assert [k for k, _ in fired] == ["stopped"]
 
 
+@pytest.mark.parametrize("meter_moves, fired_kinds", [(False, ["stopped"]),
+                                                      (True, ["reversed"])])
+def test_a_new_direction_after_the_wait_for_rest_needs_the_meter_to_see_motion(
+        meter_moves, fired_kinds):
+    """Closed form, 10 answers/s: as above, but the other way is answered at 0.11 Hz
+    from 6.5 s for 3 s, past the wait (8.0 s). A lock on a fan at rest (spent held-out
+    6600017: the fan stopped at 360.9 s, a lock the other way at 0.11 Hz from 361.3 s,
+    the short meter quiet from 362.3 s) was published at 362.5 s as a reversal, and its
+    stop came 4.7 s late: with the meter quiet from 7.8 s nothing but the stop fires. A
+    fan that reversed moves its echoes: with the meter reading motion the reversal is
+    published once the wait ends."""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=0.75), 10.0)
+    seq = [_d("same", 0.2)] * 20 + [_d("same", 0.2 - 0.05 * 0.1 * j) for j in range(31)] \
+        + [_d("unknown", 0.04 - 0.0027 * j) for j in range(15)] \
+        + [_d("reversed", 0.11)] * 30 + [_d("stopped")] * 60
+    fired = []
+    for i, d in enumerate(seq):
+        quiet = i >= 78 and not meter_moves
+        fired += [e.kind for e in tr.step(round(i * 0.1, 3), i, d, quiet=quiet)[1]]
+    assert fired[:1] == fired_kinds
+
+
 def _slow_down(tr, t0, t1, r0, slope, pulse=0):
     """Answers 'same' every 0.1 s from t0 to t1 on the line r0 + slope (t - t0)."""
     n = int(round((t1 - t0) / 0.1))

@@ -697,7 +697,8 @@ class PulseAnalyzer:
                 self.motion_fed = float(pm.motion[q])
                 self._let_go_at_start(float(ps.motion[q]))
                 d = self.decided = self.decision((self.motion_fed, float(ps.motion[q])))
-                state, fired = self.transitions.step(t_s, k, d, self._since)
+                state, fired = self.transitions.step(t_s, k, d, self._since,
+                                                     quiet=self._quiet)
                 state, changed = self._feed_back(k, t_s, d, state)
                 self.state = self.transitions.carry(
                     t_s, state, self.tracker.identity if self.tracker.locked else None)
@@ -1204,7 +1205,8 @@ class PulseAnalyzer:
             self._meter_moved = (tr.identity, last_k)
         moved = self._meter_moved
         recurring_seen = locked and last_k is not None and moved is not None \
-            and moved[0] == tr.identity and last_k - moved[1] <= self.still.window
+            and moved[0] == tr.identity and last_k - moved[1] <= self.still.window \
+            and not self.transitions.near_zero_since_known
         # a fan seen at rest: its static estimate held, or its rest confirmed (a rest that
         # comes more than SNAPSHOTS after the fan last turned briskly finds no copy of
         # the estimate to hold, and there a lock on the resting blade at 0.11 Hz, the

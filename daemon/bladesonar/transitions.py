@@ -238,6 +238,7 @@ class Transitions:
         self._carry_dip = 0                  # carried windows in a row under the band
         self._read_slow_t = -math.inf        # the last window that read the fan slower
                                              # than the floor (s)
+        self._quiet = False                  # the short meter reads no change now
         self._in_doubt = False               # the last step's decision had no kind
         self._mirror_held = False            # or was held as the mirror image of a known
                                              # direction shown to beat its own (carry)
@@ -251,12 +252,14 @@ class Transitions:
         """The machine's state in words."""
         return MachineState(self.known, self._cand, self.hold)
 
-    def step(self, t_s: float, pulse: int, d: Decision, pulses: int = 1
-             ) -> tuple[Decision, list[Event]]:
+    def step(self, t_s: float, pulse: int, d: Decision, pulses: int = 1,
+             quiet: bool = False) -> tuple[Decision, list[Event]]:
         """A decision in, standing for the last ``pulses`` pulses (the analysis decides
-        every few pulses); (the state to publish, events confirmed now) out. The hold
-        rules in their order, with what the decision shows of the fan noted between."""
+        every few pulses), ``quiet`` if the short meter read no change beyond noise for
+        it; (the state to publish, events confirmed now) out. The hold rules in their
+        order, with what the decision shows of the fan noted between."""
         self.hold = None
+        self._quiet = quiet
         self._in_doubt = self._mirror_held = self._answered = False
         cand = self._candidate(d)
         held = self._slow_new_direction(t_s, d, cand)
@@ -491,7 +494,19 @@ class Transitions:
         if cand == self.known or cand == Kind.STOPPED:
             return None
         soonest = self._soonest_reversal(t_s, self._cand_rate)
-        if soonest is None or t_s >= soonest or self._known_seen is None:
+        if soonest is None or self._known_seen is None:
+            return None
+        if t_s >= soonest:
+            if self._quiet and self._rest_unseen_until() > -math.inf:
+                # the wait for a rest to show has ended, and the meter shows it: a new
+                # way answered now is a lock on a fan at rest (spent held-out 6600017: a
+                # lock at 0.11 Hz the other way, claimed 1.5 s after the fan stopped
+                # while the meter had read rest for 0.2 s, a false reversal and a stop
+                # 4.7 s late)
+                return Held(Hold.TOO_SOON,
+                            f"confirming {_what(d, cand)}: "
+                            f"{t_s - self._read_slow_t:.2f} s after the fan read slower "
+                            f"than the floor, no change between pulses beyond noise")
             return None
         if soonest <= self._rest_unseen_until():
             return Held(Hold.TOO_SOON,
@@ -844,6 +859,12 @@ class Transitions:
         line = self._line_rate(t, self.known)
         return line is not None and old < self._visible_hz \
             and abs(line - old) <= CHAIN_AGREE * old
+
+    @property
+    def near_zero_since_known(self) -> bool:
+        """Whether a window read the fan slower than the floor after the known way's
+        last answer: the fan may have come to rest since."""
+        return self._known_seen is not None and self._read_slow_t > self._known_seen[0]
 
     def _rest_unseen_until(self) -> float:
         """Until when a fan read slower than the floor after the known way's last answer
