@@ -747,14 +747,24 @@ def test_a_new_direction_waits_for_the_meter_to_see_a_fan_read_near_zero_come_to
     stops), then at rest. The other way is not taken before 6.5 + still_window_s
     (1.5 s) = 8.0 s, by which time rest is answered: only the stop fires. (Before, its
     count met at 7.1 s, a false 'reversed' came 0.8 s before the stop.)"""
+    assert _after_a_spin_down(0.13, 8) == ["stopped"]
+
+
+def _after_a_spin_down(other_hz: float, answers: int, quiet_from: int | None = None
+                       ) -> list[str]:
+    """The events of: 'same' at 0.2 Hz for 2 s, slowing at 0.05 Hz/s for 3 s, read
+    slower than the floor for 1.5 s, the other way at ``other_hz`` for ``answers``
+    answers, then at rest (10 answers/s); the short meter quiet from answer
+    ``quiet_from`` on (None: never)."""
     tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=0.75), 10.0)
     seq = [_d("same", 0.2)] * 20 + [_d("same", 0.2 - 0.05 * 0.1 * j) for j in range(31)] \
         + [_d("unknown", 0.04 - 0.0027 * j) for j in range(15)] \
-        + [_d("reversed", 0.13)] * 8 + [_d("stopped")] * 60
+        + [_d("reversed", other_hz)] * answers + [_d("stopped")] * 60
     fired = []
     for i, d in enumerate(seq):
-        fired += [(e.kind, round(e.t_s, 3)) for e in tr.step(round(i * 0.1, 3), i, d)[1]]
-    assert [k for k, _ in fired] == ["stopped"]
+        quiet = quiet_from is not None and i >= quiet_from
+        fired += [e.kind for e in tr.step(round(i * 0.1, 3), i, d, quiet=quiet)[1]]
+    return fired
 
 
 @pytest.mark.parametrize("meter_moves, fired_kinds", [(False, ["stopped"]),
@@ -768,14 +778,7 @@ def test_a_new_direction_after_the_wait_for_rest_needs_the_meter_to_see_motion(
     stop came 4.7 s late: with the meter quiet from 7.8 s nothing but the stop fires. A
     fan that reversed moves its echoes: with the meter reading motion the reversal is
     published once the wait ends."""
-    tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=0.75), 10.0)
-    seq = [_d("same", 0.2)] * 20 + [_d("same", 0.2 - 0.05 * 0.1 * j) for j in range(31)] \
-        + [_d("unknown", 0.04 - 0.0027 * j) for j in range(15)] \
-        + [_d("reversed", 0.11)] * 30 + [_d("stopped")] * 60
-    fired = []
-    for i, d in enumerate(seq):
-        quiet = i >= 78 and not meter_moves
-        fired += [e.kind for e in tr.step(round(i * 0.1, 3), i, d, quiet=quiet)[1]]
+    fired = _after_a_spin_down(0.11, 30, quiet_from=None if meter_moves else 78)
     assert fired[:1] == fired_kinds
 
 
