@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from bladesonar import config
-from bladesonar.answer import Decision, Direction, Kind
+from bladesonar.answer import Decision, Direction, EventKind, Kind
 from bladesonar.io.scene_file import load_scene
 from bladesonar.offline import analyze
 from bladesonar.reference_build import build_reference
@@ -751,7 +751,7 @@ def test_a_new_direction_waits_for_the_meter_to_see_a_fan_read_near_zero_come_to
 
 
 def _after_a_spin_down(other_hz: float, answers: int, quiet_from: int | None = None
-                       ) -> list[str]:
+                       ) -> list[EventKind]:
     """The events of: 'same' at 0.2 Hz for 2 s, slowing at 0.05 Hz/s for 3 s, read
     slower than the floor for 1.5 s, the other way at ``other_hz`` for ``answers``
     answers, then at rest (10 answers/s); the short meter quiet from answer

@@ -497,7 +497,7 @@ class Transitions:
         if soonest is None or self._known_seen is None:
             return None
         if t_s >= soonest:
-            if self._quiet and self._rest_unseen_until() > -math.inf:
+            if self._quiet and self.near_zero_since_known:
                 # the wait for a rest to show has ended, and the meter shows it: a new
                 # way answered now is a lock on a fan at rest (spent held-out 6600017: a
                 # lock at 0.11 Hz the other way, claimed 1.5 s after the fan stopped
@@ -873,7 +873,7 @@ class Transitions:
         no window read it so. (Spent held-out 5500020: a lock on a fan come to rest claimed
         the other way, speeding up to 0.22 Hz, while the meter read 4-14 for 1.4 s after
         the fan read slow; it fell under the threshold 1.5 s after.)"""
-        if self._known_seen is None or not self._read_slow_t > self._known_seen[0]:
+        if not self.near_zero_since_known:
             return -math.inf
         return self._read_slow_t + self.settings.still_window_s
 
