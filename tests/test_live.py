@@ -242,9 +242,9 @@ def decisions_and_events(cfg, ref, x, lead: int = 0):
             watched = an                   # watch the decisions the state machine gets
             step = an.transitions.step
 
-            def watch(t_s, k, d, since, step=step):
+            def watch(t_s, k, d, since, step=step, **kw):
                 decided.append(k)
-                return step(t_s, k, d, since)
+                return step(t_s, k, d, since, **kw)
             an.transitions.step = watch    # type: ignore[method-assign,assignment]
         events += [(e.kind.value, e.pulse, i - lead) for e in live.take_events()]
     return decided, events
