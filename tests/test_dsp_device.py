@@ -73,16 +73,16 @@ def test_clipped_coupling_is_timed_by_its_ringing_at_high_snr(over, drift):
     assert np.max(np.abs(err - np.mean(err))) < 2e-3
 
 
-def _coarse_clipped(n: int, drift: float, lose_at: int | None = None, over: float = 4.0,
+def _coarse_clipped(n: int, drift: float, lose_at: int | tuple[int, int] | None = None,
                     whole: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """n pulses of a coupling with no ringing (an ideal speaker) ``over`` times full
-    scale, clipped: timed from its plateaus' edges only. ``lose_at``: samples lost in
+    """n pulses of a coupling with no ringing (an ideal speaker) 4 times full scale,
+    clipped: timed from its plateaus' edges only. ``lose_at``: samples lost in
     that pulse's gate (``lose_at`` alone: one; a pair (pulse, samples)); ``whole``: the
     whole recording at once (pulses.align_recording). (the edges found, their pulse
     numbers, the true edges as received)."""
     x, edges, _ = pulse_train(n, PRI, rate=0.05, drift_ppm=drift, noise=1e-4, direct=0.0)
     for e in edges:
-        add_pulse(x, e, over)
+        add_pulse(x, e, 4.0)
     x = np.clip(x, -FULL, FULL)
     true = edges.copy()
     if lose_at is not None:
@@ -126,10 +126,9 @@ def test_a_coarsely_timed_coupling_under_slow_drift_has_its_bias_taken_out(drift
     assert np.max(np.abs(settled - np.mean(settled))) < 0.015, np.ptp(settled)
 
 
-@pytest.mark.parametrize("drift, over, lose_at", [(-13.6, 4.0, None), (60.0, 4.0, None),
-                                                  (-140.0, 4.0, (300, 37))])
+@pytest.mark.parametrize("drift, lose_at", [(-13.6, None), (60.0, None), (-140.0, (300, 37))])
 def test_a_whole_recording_takes_the_plateau_timings_error_out_from_its_first_pulse(
-        drift, over, lose_at):
+        drift, lose_at):
     """A reference is learned from 20 s, about 680 pulses: fewer than the streaming
     learner needs (a thousand) before it trusts its line, so its edges followed the
     plateau timing's sawtooth (0.2 sample rms at -13.6 ppm, a turn every 57 pulses), the
@@ -138,10 +137,10 @@ def test_a_whole_recording_takes_the_plateau_timings_error_out_from_its_first_pu
     fitted together (dsp/pulses.fit_fraction_bias): every edge lies on the clocks' line
     within 0.01 sample from the first pulse on, across 37 lost samples too."""
     n = 680
-    edges, index, true = _coarse_clipped(n, drift, lose_at=lose_at, over=over, whole=True)
+    edges, index, true = _coarse_clipped(n, drift, lose_at=lose_at, whole=True)
     err = edges - true[index]
     assert np.max(np.abs(err - np.median(err))) < 0.01, np.ptp(err)
-    streamed, index, true = _coarse_clipped(n, drift, lose_at=lose_at, over=over)
+    streamed, index, true = _coarse_clipped(n, drift, lose_at=lose_at)
     err = streamed - true[index]
     assert np.max(np.abs(err - np.median(err))) > 0.05   # what the stream alone gives
 
