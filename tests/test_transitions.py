@@ -634,6 +634,29 @@ def test_a_run_the_other_way_after_the_fan_read_slow_is_judged_afresh(between_hz
     assert fired == ([("reversed", 154 + 51)] if fires else [])
 
 
+@pytest.mark.parametrize(("fast_pulses", "fires"), [(10, True), (40, False)])
+def test_a_short_faster_lock_of_the_old_direction_does_not_make_a_reversal_sudden(
+        fast_pulses, fires):
+    """Closed form, 34 pulses/s, 0.3 Hz/s, runs followed for 1 s: 'same' at 0.19 Hz
+    until pulse 99 (2.912 s), 60 pulses with no track, ``fast_pulses`` of 'same' at
+    0.69 Hz (a new lock, more than a quarter above the fan's last speed), then the other
+    way at 0.13 Hz on a line never shown to beat its mirror. From 0.19 Hz through zero to
+    0.13 Hz takes 0.32 / 0.3 = 1.07 s, long passed: a lock of 10 pulses (0.29 s, under
+    the 1 s a run must be followed) is an alias line as likely as the fan, and the
+    reversal fires at its 17th pulse (160 + 10 + 16). Followed for 40 pulses (1.18 s) it
+    is the fan's speed, from which the other way 0.03 s later would need 2.7 s: the
+    mirror image, held. (Seen: spent held-out 6900009's reversal held 5 s after a
+    two-decision lock at 0.69 Hz.)"""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.3), 34.0)
+    seq = [_d("same", 0.19)] * 100 + [_lost()] * 60 \
+        + [_d("same", 0.69, checked=False)] * fast_pulses \
+        + [_d("reversed", 0.13, checked=False)] * 60
+    fired = []
+    for i, d in enumerate(seq):
+        fired += [(e.kind, e.pulse) for e in tr.step(i / 34.0, i, d)[1]]
+    assert fired == ([("reversed", 160 + fast_pulses + 16)] if fires else [])
+
+
 def test_the_old_direction_is_bounded_by_rest_and_by_how_fast_a_fan_speeds_up():
     """Closed form, 10 answers/s, 0.3 Hz/s: 'same' at 0.4 Hz, then at rest ('stopped')
     until 5.0 s, then a lock claiming 'same' at 0.26 Hz at 5.1 and 5.2 s, then

@@ -616,7 +616,7 @@ class Transitions:
         if cand in TURNING_KINDS:
             if cand == self.known:
                 self._known_checked = self._known_checked or d.mirror_checked
-                if self._new_lock_after_zero(t_s, cand):
+                if self._new_lock_after_zero(t_s, cand) or self._new_lock_faster(t_s, d):
                     return
                 self._see_known(t_s, _rate(d))
                 self._chain = self._known_seen  # (bounded from rest like it)
@@ -644,6 +644,19 @@ class Transitions:
         if self._chain is None:
             return self._rest_since_known
         return self._below_floor(t_s, kind) or self._read_slow_once_reachable()
+
+    def _new_lock_faster(self, t_s: float, d: Decision) -> bool:
+        """Whether an answer of the known direction belongs to a run not yet followed for
+        ``followed_s`` at a speed more than ``CHAIN_AGREE`` above the chain's: a lock
+        taken up after a break at another speed is an alias line as often as the fan
+        sped up (:meth:`carry` keeps such lines out of its band too). Like a new lock
+        after zero it renews neither the chain nor the speed the fan was last seen at;
+        followed for ``followed_s``, it is the fan's. (Spent held-out 6900009: a 3-blade
+        fan at 0.19 Hz reversed to 0.13 Hz; past zero a new lock read the old way at
+        0.69 Hz for two decisions, the chain took that speed, and the fan's reversal,
+        answered 0.3 s later, was held as the sudden mirror image for 5 s.)"""
+        return t_s - self._run_from < self.settings.followed_s and self._chain is not None \
+            and _rate(d) > (1.0 + CHAIN_AGREE) * self._chain[1]
 
     def _read_slow_once_reachable(self) -> bool:
         """Whether a window read the fan slower than the floor after the chain's last
