@@ -181,3 +181,23 @@ def test_a_sub_sample_cycle_that_hardly_turns_over_the_record_is_no_line():
     assert drift_harmonic(0.001, 1297.001, 680) is None
     assert drift_harmonic(0.002, 1297.001, 680) is None
     assert drift_harmonic(0.001, 1297.001, 3000) == 1
+
+
+def test_the_strongest_line_is_reported_beside_the_rate_that_explains_it():
+    """A pattern with one line only, at 0.31512 cycles per pulse (twice the sub-sample
+    cycle of pulses 1296.8424 samples apart, -121.5 ppm on 1297): whichever rate the
+    estimator takes to explain it (the line itself, or a rate whose aliased harmonic it
+    is, as in held-out 7100013: 0.342, whose second harmonic folds onto it), the line it
+    explains is reported, within a bin (1/680), and named as the drift's second
+    harmonic."""
+    from synth_pulses import add_pulse
+
+    def pattern(phase, length):
+        x = np.zeros(length)
+        add_pulse(x, 420.0, 0.04 * (1.2 + np.cos(2 * np.pi * phase)))
+        return x
+    nu0 = 2 * (1297.0 - 1296.8424)
+    y, _ = _pulses(nu0, 680, pattern=pattern)
+    est = estimate_period(y)            # (the raw pulses: linear in the echo's amplitude)
+    assert abs(est.strongest_line - nu0) <= 1.0 / 680
+    assert drift_harmonic(est.strongest_line, 1296.8424, 680) == 2

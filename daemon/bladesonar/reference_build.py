@@ -319,9 +319,16 @@ def _off_the_drift(est: PeriodEstimate, xv: np.ndarray, valid: np.ndarray,
     the same line there is the fan's (a fan may turn there by chance: a held-out room's
     at 0.639 Hz, 29 ppm); another line is the fan's, hidden above by the drift's (3-D
     tuning scene 8: 3.54 Hz learned for a fan at 0.264 Hz, which the low band gives);
-    none leaves the reference with a warning."""
+    none leaves the reference with a warning. The rate is checked, and so is the
+    strongest line it was chosen to explain: a rate can explain a drift harmonic as one
+    of its own aliased harmonics (held-out 7100013: the only strong line at twice the
+    cycle, 0.315 per pulse at -121 ppm, taken as the second harmonic of 0.342, 1.94 Hz
+    for a fan at 0.155 Hz whose own lines were too weak to be peaks)."""
     r = est.cycles_per_pulse
     h = drift_harmonic(r, period, span)
+    of_line = h is None
+    if of_line:
+        h = drift_harmonic(est.strongest_line, period, span)
     if h is None:
         return est, []
     try:
@@ -337,15 +344,17 @@ def _off_the_drift(est: PeriodEstimate, xv: np.ndarray, valid: np.ndarray,
          f"position under this device's clock drift ({sub_sample_cycle(period):.5f} per " \
          f"pulse, {ppm:+.0f} ppm)"
     hz = r * prf / blades
+    turned = "whose strongest line turned" if of_line else "turned"
     if low is not None:
         return low, [
-            f"the strongest pattern ({hz:.3f} Hz) turned {on}: the alignment's error on "
+            f"the strongest pattern ({hz:.3f} Hz) {turned} {on}: the alignment's error on "
             f"strong static echoes, not the fan; the rate is taken from the band below "
             f"{TARGET_BAND:g} of Nyquist, where the drift's pattern is not "
             f"({low.cycles_per_pulse * prf / blades:.3f} Hz). A place where the device "
             f"sees the blades better makes the fan's echoes stronger"]
     return est, [
-        f"the pattern found turns {r:.5f} blade periods per pulse ({hz:.3f} Hz), {on}, "
+        f"the pattern found turns {r:.5f} blade periods per pulse ({hz:.3f} Hz), "
+        f"{'its strongest line ' if of_line else ''}{on}, "
         f"and the band below {TARGET_BAND:g} of Nyquist shows no pattern: if the fan "
         f"does not turn at {hz:.3f} Hz, the pattern is the alignment's interpolation "
         f"error on strong static echoes and the fan's echoes are too weak from here: "

@@ -56,6 +56,10 @@ class PeriodEstimate:
         Harmonic numbers used for refinement.
     periods : float
         Blade periods spanned by the pulses used.
+    strongest_line : float
+        Cycles per pulse (0 .. 1/2) of the strongest doppler line, whose aliases and
+        harmonics the candidate rates are: a rate is chosen because it explains that
+        line, which can be a pattern other than the fan's (:func:`drift_harmonic`).
     """
 
     cycles_per_pulse: float
@@ -64,6 +68,7 @@ class PeriodEstimate:
     explained: float
     harmonics: tuple[int, ...]
     periods: float
+    strongest_line: float = float("nan")
 
 
 #: Roughness (PhaseFolds.roughness) above which a fold's angles are in no order: about 1
@@ -228,7 +233,7 @@ def estimate_period(y: np.ndarray, k: np.ndarray | None = None, *,
     r = _refine(folds.z, folds.k, r0, np.array(use, dtype=np.float64), span)
     return PeriodEstimate(cycles_per_pulse=r, coarse=r0, line_snr=lines.line_snr,
                           explained=float(lines.explained(r0)), harmonics=tuple(use),
-                          periods=r * span)
+                          periods=r * span, strongest_line=float(lines.nu[lines.strongest]))
 
 
 #: Harmonics of the aligner's sub-sample cycle that a found blade rate is checked against.
