@@ -657,6 +657,35 @@ def test_a_short_faster_lock_of_the_old_direction_does_not_make_a_reversal_sudde
     assert fired == ([("reversed", 160 + fast_pulses + 16)] if fires else [])
 
 
+@pytest.mark.parametrize("carried", [True, False])
+def test_a_faster_lock_renews_the_chain_once_the_fan_was_seen_at_its_speed_before(carried):
+    """Closed form, 34 pulses/s, 0.3 Hz/s, runs followed for 1 s: a start answered `same`
+    at 0.15 Hz, then once at 0.08 Hz (a follower's dip: the chain's speed), then a lock
+    answering `same` at 0.3 Hz for 6 pulses on line B (faster than the chain by more than
+    a quarter, not yet followed: it does not renew the chain), 30 windows in doubt at
+    0.3 Hz on B (carried as `same`: its line followed without a break), a second lock
+    answering `same` at 0.3 Hz for 4 pulses, then `reversed` at 0.3 Hz on a line never
+    shown to beat its mirror. The fan was seen at 0.3 Hz before the second lock (answered
+    and carried): the second lock renews the chain, and the other way 0.12 s later,
+    which would need 2 s through zero, is the mirror image, held (no event). Without the
+    carried windows (30 windows with no track instead) nothing vouches for 0.3 Hz, the
+    chain is the dip 1.1 s before, and the reversal fires once a fan could have made it
+    from 0.08 Hz (1.27 s after the dip). (Spent held-out 7100008: a
+    start's mirror lock corrected so; held-out 6900009's single blip is the other case.)"""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.3), 34.0)
+    seq = [_d("stopped")] * 40 + [_d("same", 0.15)] * 30 + [_d("same", 0.08)] * 4 \
+        + [_d("same", 0.3, checked=False)] * 6 + [_doubt(0.3) if carried else _lost()] * 30 \
+        + [_d("same", 0.3, checked=False)] * 4 + [_d("reversed", 0.3, checked=False)] * 40
+    lines = [None] * 40 + ["A"] * 34 + ["B"] * 6 + (["B"] if carried else [None]) * 30 \
+        + ["C"] * 4 + ["D"] * 40
+    fired = []
+    for i, (d, line) in enumerate(zip(seq, lines, strict=True)):
+        o, ev = tr.step(i / 34.0, i, d)
+        tr.carry(i / 34.0, o, line)
+        fired += [e.kind for e in ev]
+    assert fired == (["started"] if carried else ["started", "reversed"])
+
+
 def test_the_old_direction_is_bounded_by_rest_and_by_how_fast_a_fan_speeds_up():
     """Closed form, 10 answers/s, 0.3 Hz/s: 'same' at 0.4 Hz, then at rest ('stopped')
     until 5.0 s, then a lock claiming 'same' at 0.26 Hz at 5.1 and 5.2 s, then

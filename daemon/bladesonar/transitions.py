@@ -231,6 +231,7 @@ class Transitions:
         self._carry_from: float | None = None   # the rate (Hz) the known direction
                                              # was last answered at (carry)
         self._carry_seen = -math.inf         # the last answered or carried window (s)
+        self._carried: tuple[float, float] | None = None   # the last carried window (s, Hz)
         #: (t, rate) of the known direction's recent answers: the band's lower edge is
         #: the slowest of them (carry)
         self._carry_answers: deque[tuple[float, float]] = deque()
@@ -399,6 +400,7 @@ class Transitions:
             self._carry_from = None
             return d
         self._carry_seen, self._carry_line = t, line
+        self._carried = (t, rate)
         if self._mirror_held and not self._below_floor(t, self.known):
             # published as the known way turning at its speed: the fan was seen turning
             # (spent held-out 6000020: a slow reversal's last windows before zero were
@@ -655,8 +657,16 @@ class Transitions:
         fan at 0.19 Hz reversed to 0.13 Hz; past zero a new lock read the old way at
         0.69 Hz for two decisions, the chain took that speed, and the fan's reversal,
         answered 0.3 s later, was held as the sudden mirror image for 5 s.)"""
-        return t_s - self._run_from < self.settings.followed_s and self._chain is not None \
-            and _rate(d) > (1.0 + CHAIN_AGREE) * self._chain[1]
+        if not (t_s - self._run_from < self.settings.followed_s and self._chain is not None):
+            return False
+        seen = self._chain[1]
+        if self._carried is not None and self._chain[0] < self._carried[0] < self._run_from:
+            # a window carried as the known way after the chain's answer and before this
+            # run (a line followed up a ramp, :meth:`carry`) saw the fan at its speed: a
+            # spin-up's new lock at it is the fan (spent held-out 7100008: carried at
+            # 0.28 Hz, then a lock answering 0.28 Hz, 1.5 s after the chain's 0.08 Hz)
+            seen = max(seen, self._carried[1])
+        return _rate(d) > (1.0 + CHAIN_AGREE) * seen
 
     def _read_slow_once_reachable(self) -> bool:
         """Whether a window read the fan slower than the floor after the chain's last
