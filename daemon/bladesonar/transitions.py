@@ -653,7 +653,8 @@ class Transitions:
         taken up after a break at another speed is an alias line as often as the fan
         sped up (:meth:`carry` keeps such lines out of its band too). Like a new lock
         after zero it renews neither the chain nor the speed the fan was last seen at;
-        followed for ``followed_s``, it is the fan's. (Spent held-out 6900009: a 3-blade
+        followed for ``followed_s``, or at the speed of a window carried as the known way
+        before its run, it is the fan's. (Spent held-out 6900009: a 3-blade
         fan at 0.19 Hz reversed to 0.13 Hz; past zero a new lock read the old way at
         0.69 Hz for two decisions, the chain took that speed, and the fan's reversal,
         answered 0.3 s later, was held as the sudden mirror image for 5 s.)"""
