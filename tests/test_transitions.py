@@ -686,6 +686,46 @@ def test_a_faster_lock_renews_the_chain_once_the_fan_was_seen_at_its_speed_befor
     assert fired == (["started"] if carried else ["started", "reversed"])
 
 
+@pytest.mark.parametrize("continuous", [True, False])
+def test_a_line_followed_through_zero_in_a_doubtful_room_reverses(continuous):
+    """Closed form, 10 decisions/s, 0.3 Hz/s, confirm 0.5 s (5 pulses), a room whose
+    directions are in doubt: `same` answered at 0.4 Hz for 1 s on line A, then slowing at
+    0.1 Hz/s to 0.15 Hz at 3.5 s (its line reaches zero at 5.0 s); a new track B reads
+    the fan in doubt of its direction (its mirror fits as well) at +0.14 Hz, carried as
+    `same`, down through zero at 5.0 s and up the other way (-0.01 Hz more per decision).
+    A track's relative rate changes sign only through zero, whichever of the line and
+    its mirror it follows: its windows at the rate a new direction needs (0.1 Hz, from
+    6.0 s) are `reversed`, waited for until the meter could have seen a rest (the last
+    window under the floor at 5.4 s, plus 1.5 s) and fired at 6.9 s. The same windows on
+    a new lock C after zero say nothing of the way: no event, the direction `unknown`.
+    (Spent held-out 7400011: a reversal so came 10 s late, to be confirmed.)"""
+    tr = Transitions(TransitionSettings(confirm_s=0.5, max_reversal_hz_s=0.3), 10.0)
+
+    def answer(r):
+        return Decision(Direction.SAME, None, r / 0.4, r, None, 0.9, "test", turning=True,
+                        doubtful_room=True)
+
+    def doubt(r):
+        return Decision(Direction.UNKNOWN, None, r / 0.4, abs(r), None, 0.3,
+                        "direction to be confirmed", turning=abs(r) >= 0.1,
+                        direction_doubt=True, doubtful_room=True)
+
+    seq = [(answer(0.4), "A")] * 10 + [(answer(0.4 - 0.1 * j / 10), "A") for j in range(26)]
+    seq += [(doubt(0.15 - 0.01 * j), "B" if j < 16 or continuous else "C")
+            for j in range(1, 40)]
+    fired, published = [], []
+    for i, (d, line) in enumerate(seq):
+        o, ev = tr.step(i / 10.0, i, d, line=line)
+        published.append(tr.carry(i / 10.0, o, line).direction)
+        fired += [(e.kind, round(e.t_s, 2)) for e in ev]
+    assert published[36:40] == ["same"] * 4           # carried on B (0.14-0.11 Hz)
+    if continuous:
+        assert fired == [("reversed", 6.9)]
+        assert published[-1] == "reversed"
+    else:
+        assert fired == [] and published[-1] == "unknown"
+
+
 def test_the_old_direction_is_bounded_by_rest_and_by_how_fast_a_fan_speeds_up():
     """Closed form, 10 answers/s, 0.3 Hz/s: 'same' at 0.4 Hz, then at rest ('stopped')
     until 5.0 s, then a lock claiming 'same' at 0.26 Hz at 5.1 and 5.2 s, then

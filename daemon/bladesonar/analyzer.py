@@ -697,8 +697,9 @@ class PulseAnalyzer:
                 self.motion_fed = float(pm.motion[q])
                 self._let_go_at_start(float(ps.motion[q]))
                 d = self.decided = self.decision((self.motion_fed, float(ps.motion[q])))
-                state, fired = self.transitions.step(t_s, k, d, self._since,
-                                                     quiet=self._quiet)
+                state, fired = self.transitions.step(
+                    t_s, k, d, self._since, quiet=self._quiet,
+                    line=self.tracker.identity if self.tracker.locked else None)
                 state, changed = self._feed_back(k, t_s, d, state)
                 self.state = self.transitions.carry(
                     t_s, state, self.tracker.identity if self.tracker.locked else None)

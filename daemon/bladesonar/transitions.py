@@ -246,6 +246,11 @@ class Transitions:
         self._answered = False               # no rule held the last step's answer
         self._carry_line: Hashable | None = None   # the tracked line of the last answered
                                              # or carried window (carry)
+        #: (line, sign, kind): the sign of the relative rate a tracked line read while it
+        #: was answered or carried as ``kind`` (:meth:`_through_zero`)
+        self._tie: tuple[Hashable, float, Kind] | None = None
+        self._flipped = False                # the last step's decision was answered the
+                                             # other way by :meth:`_through_zero`
         self.events: list[Event] = []        # all events so far (the caller may clear)
 
     @property
@@ -254,14 +259,17 @@ class Transitions:
         return MachineState(self.known, self._cand, self.hold)
 
     def step(self, t_s: float, pulse: int, d: Decision, pulses: int = 1,
-             quiet: bool = False) -> tuple[Decision, list[Event]]:
+             quiet: bool = False, line: Hashable | None = None
+             ) -> tuple[Decision, list[Event]]:
         """A decision in, standing for the last ``pulses`` pulses (the analysis decides
         every few pulses), ``quiet`` if the short meter read no change beyond noise for
-        it; (the state to publish, events confirmed now) out. The hold rules in their
-        order, with what the decision shows of the fan noted between."""
+        it, ``line`` the tracked line it was read on (as :meth:`carry` takes it); (the
+        state to publish, events confirmed now) out. The hold rules in their order, with
+        what the decision shows of the fan noted between."""
         self.hold = None
         self._quiet = quiet
         self._in_doubt = self._mirror_held = self._answered = False
+        d = self._through_zero(t_s, d, line)
         cand = self._candidate(d)
         held = self._slow_new_direction(t_s, d, cand)
         if held is not None:
@@ -364,6 +372,8 @@ class Transitions:
         st = self.settings
         if self._answered:
             self._carry_line, self._carry_dip = line, 0
+            if not self._flipped:
+                self._tie_line(line, d, Kind.of(d.direction))
         if self._in_doubt and self.known == Kind.STOPPED and self.known_decision is not None:
             k = self.known_decision
             if line is None and d.rate_hz is None:
@@ -399,6 +409,7 @@ class Transitions:
         if t - self._carry_seen > _sudden_span(answered, rate, st.max_reversal_hz_s):
             self._carry_from = None
             return d
+        self._tie_line(line, d, self.known)
         self._carry_seen, self._carry_line = t, line
         self._carried = (t, rate)
         if self._mirror_held and not self._below_floor(t, self.known):
@@ -424,6 +435,45 @@ class Transitions:
                "without a break since it was last answered " + str(way))
         return replace(d, direction=way, rotation=rotation, relative_rate=rel, turning=True,
                        reason=f"{way} carried: {how}; {d.reason}")
+
+    def _tie_line(self, line: Hashable | None, d: Decision, kind: Kind | None) -> None:
+        """Note the sign of the relative rate that ``line`` reads while the fan turns
+        ``kind`` (an answered or carried window's)."""
+        rel = d.relative_rate
+        if line is not None and kind in WAY_KINDS and rel is not None \
+                and math.isfinite(rel) and rel != 0.0:
+            self._tie = (line, math.copysign(1.0, rel), kind)
+
+    def _through_zero(self, t_s: float, d: Decision, line: Hashable | None) -> Decision:
+        """A window in doubt only about the direction (its mirror image fits as well) on
+        a line that read the known direction with the other sign, after the known way's
+        slowing line reached zero: answered the other way. A track follows the fan's
+        phase without a break (its line changes with every new lock and every move to
+        another line), so its relative rate changes sign only through zero, whichever of
+        the line and its mirror it is on; the fan has reversed. (Spent held-out 7400011,
+        a 4-blade fan 3.8 m away whose directions were in doubt: a track carried as the
+        known way at 0.23 Hz followed the fan down through zero and up the other way to
+        0.44 Hz; the direction stayed `unknown`, to be confirmed, for 9.6 s, and the
+        reversal came 10 s late.)"""
+        self._flipped = False
+        tie = self._tie
+        if tie is None or line is None or line != tie[0] or self.known != tie[2] \
+                or d.direction != Direction.UNKNOWN or not (d.turning and d.direction_doubt):
+            return d
+        rel = d.relative_rate
+        if rel is None or not math.isfinite(rel) or math.copysign(1.0, rel) == tie[1] \
+                or _rate(d) < self._visible_hz or self._line_zero(t_s) is None:
+            return d
+        self._flipped = True
+        way = Direction.REVERSED if tie[2] == Kind.SAME else Direction.SAME
+        known = self.known_decision
+        rotation = None
+        if known is not None and known.rotation in ("cw", "ccw"):
+            rotation = "ccw" if known.rotation == "cw" else "cw"
+        return replace(d, direction=way, rotation=rotation,
+                       relative_rate=abs(rel) if way == Direction.SAME else -abs(rel),
+                       reason=f"{way}: its line, {tie[2]} before, has followed the fan "
+                              f"through zero; {d.reason}")
 
     # -- the hold rules: each returns why it holds the decision, or None ------------------
 
