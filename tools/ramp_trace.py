@@ -42,7 +42,7 @@ from bladesonar.sim.score import MOVING_HZ, true_time  # noqa: E402
 
 KINDS = ("steady", "spin-up", "spin-down", "reversal (before 0)", "reversal (after 0)",
          "speed-up", "slow-down")
-NEXT_HELD_OUT = 7400001
+NEXT_HELD_OUT = 7500001
 #: the steepest ramp scored, Hz/s: bench_day's random scenes score ramps up to the
 #: issue's 0.15 Hz/s (its tuned day up to 0.1)
 RAMP_MAX_HZ_S = 0.15

@@ -30,9 +30,12 @@ after the analysis has taken its feedback from it: the carry changes what is pub
 not what the analysis learns): a fan cannot reverse without passing through zero, which
 ends the carry.
 
-Between rules 2 and 3 the machine notes what the decision shows of the fan (the chain of
-answers at its speed, the slowing line, when it was last seen turning, the candidate),
-which the later rules read. Why each rule is there, with the cases and figures behind
+Before the rules, a window in doubt only about the direction on a tracked line that
+read the known direction with the other sign, once the known way's slowing line has
+reached zero, is answered the other way (:meth:`_through_zero`: a track's rate changes
+sign only through zero). Between rules 2 and 3 the machine notes what the decision
+shows of the fan (the chain of answers at its speed, the slowing line, when it was last
+seen turning, the candidate), which the later rules read. Why each rule is there, with the cases and figures behind
 it: docs/dynamics.md, "Why each rule is there".
 
 Events fire only on a change of the *known* state: ``started`` (stopped -> turning),
