@@ -35,8 +35,8 @@ read the known direction with the other sign, once the known way's slowing line 
 reached zero, is answered the other way (:meth:`_through_zero`: a track's rate changes
 sign only through zero). Between rules 2 and 3 the machine notes what the decision
 shows of the fan (the chain of answers at its speed, the slowing line, when it was last
-seen turning, the candidate), which the later rules read. Why each rule is there, with the cases and figures behind
-it: docs/dynamics.md, "Why each rule is there".
+seen turning, the candidate), which the later rules read. Why each rule is there, with
+the cases and figures behind it: docs/dynamics.md, "Why each rule is there".
 
 Events fire only on a change of the *known* state: ``started`` (stopped -> turning),
 ``stopped`` (turning -> stopped), ``reversed`` (turning one way -> the other, whatever
