@@ -726,6 +726,40 @@ def test_a_line_followed_through_zero_in_a_doubtful_room_reverses(continuous):
         assert fired == [] and published[-1] == "unknown"
 
 
+def test_a_sudden_run_is_judged_afresh_only_on_what_was_seen_after_its_verdict():
+    """Closed form, 10 decisions/s, 0.3 Hz/s, confirm 0.5 s: a start's first lock answers
+    `same` at 0.12 Hz (a start fires), once more at 0.10 Hz at 2.6 s, then one window
+    reading 0.01 Hz (weak evidence), then `reversed` at 0.13 Hz from 2.8 s: sooner than
+    half the 0.77 s a fan needs from 0.10 Hz through zero to 0.13 Hz, the mirror image,
+    held. A window in doubt breaks the run at 5.9 s; it resumes at 6.0 s on a line that
+    beat its mirror image. The slow window came before the run's verdict, which it did
+    not change then; the resumed run keeps it and corrects the start's direction: no
+    event. A slow window after the run's first answer (the variant) is news of a fan
+    near zero: the resumed run is judged afresh, no longer sudden, and fires `reversed`.
+    (Spent held-out 7200004: a start's track answered `same` while its rate estimate
+    converged through zero to the fan's `reversed`; judged afresh on the slow window
+    before it, the run fired a false reversal 6.6 s after the start.)"""
+    def run(slow_after):
+        tr = Transitions(TransitionSettings(confirm_s=0.5, stop_confirm_s=0.5,
+                                            max_reversal_hz_s=0.3), 10.0)
+        weak = Decision(Direction.UNKNOWN, None, 0.01, 0.01, None, 0.15, "weak evidence")
+        rev = [_d("reversed", 0.13 + 0.01 * j, checked=False) for j in range(31)]
+        seq = [_d("stopped")] * 20 + [_d("same", 0.12, checked=False)] * 6 \
+            + [_d("same", 0.10, checked=False)] \
+            + ([rev[0], weak] + rev[1:] if slow_after else [weak] + rev) \
+            + [_doubt(0.45)] + [_d("reversed", 0.45)] * 10
+        fired, published = [], []
+        for i, d in enumerate(seq):
+            o, ev = tr.step(i / 10.0, i, d)
+            published.append(o.direction)
+            fired += [e.kind for e in ev]
+        return fired, published
+    fired, published = run(False)
+    assert fired == ["started"]
+    assert published[30:59] == ["unknown"] * 29 and published[-1] == "reversed"
+    assert run(True)[0] == ["started", "reversed"]
+
+
 def test_the_old_direction_is_bounded_by_rest_and_by_how_fast_a_fan_speeds_up():
     """Closed form, 10 answers/s, 0.3 Hz/s: 'same' at 0.4 Hz, then at rest ('stopped')
     until 5.0 s, then a lock claiming 'same' at 0.26 Hz at 5.1 and 5.2 s, then

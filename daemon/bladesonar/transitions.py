@@ -744,8 +744,9 @@ class Transitions:
         """A new candidate starts its count afresh and is judged sudden or not; a run
         that resumes after a break is judged afresh where the fan was seen near zero
         since: on a line of the old way that has reached zero, or in a window that read
-        it slower than the floor after it was last seen turning the old way (a fan not
-        seen slowing to zero keeps the verdict)."""
+        it slower than the floor after it was last seen turning the old way and after
+        the run's first answer (a fan not seen slowing to zero keeps the verdict, and so
+        does one seen so only before the verdict)."""
         if cand is not None and cand != self._cand:
             self._cand = cand
             self._support.clear()
@@ -754,11 +755,21 @@ class Transitions:
             self._cand_impossible = self._impossible_reversal(t_s, self._cand_rate, cand)
         elif cand is not None and prev != cand and self._cand_impossible \
                 and self.known in WAY_KINDS and (self._past_zero(t_s, self.known)
-                                                 or self._read_slow_since_chain()):
+                                                 or self._read_slow_since_cand()):
             # (a sudden run is an impossible one too)
             self._cand_sudden = self._cand_sudden and self._sudden_reversal(t_s, _rate(d),
                                                                             cand)
             self._cand_impossible = self._impossible_reversal(t_s, _rate(d), cand)
+
+    def _read_slow_since_cand(self) -> bool:
+        """Whether a window read the fan slower than the floor after the chain's last
+        answer and after the candidate's first: what was seen before the candidate's
+        verdict is no news to it (spent held-out 7200004: a start's track answered
+        `same` while its rate estimate converged through zero to the fan's `reversed`,
+        one weak window between read 0.01 Hz; the run the other way, held as sudden,
+        resumed after a window in doubt, was judged afresh on that window and fired a
+        false reversal 6.6 s after the start)."""
+        return self._read_slow_since_chain() and self._read_slow_t > self._cand_t
 
     def _read_slow_since_chain(self) -> bool:
         """Whether a window read the fan slower than the floor after it was last seen
